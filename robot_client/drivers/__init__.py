@@ -1,0 +1,1 @@
+"""Robot drivers: cameras, motors, depth sensors and clocks behind small Protocols."""

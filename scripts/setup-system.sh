@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Debian packages the project needs: OSMesa for the simulator's CPU rendering, Chromium for the
+# dashboard's browser test. Installs only what is missing; needs root (or sudo) to install.
+set -euo pipefail
+packages=(libosmesa6 chromium)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+done
+((${#missing[@]} == 0)) && exit 0
+sudo=""
+if [[ $(id -u) -ne 0 ]]; then
+  command -v sudo >/dev/null || { echo "need root to install: ${missing[*]}" >&2; exit 1; }
+  sudo="sudo"
+fi
+echo "installing Debian packages: ${missing[*]}"
+$sudo apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

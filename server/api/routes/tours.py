@@ -1,0 +1,29 @@
+"""Tours: create, list, read the graph."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+
+from server import schemas
+from server.api.deps import PrincipalDep, ServicesDep
+
+router = APIRouter(prefix="/tours", tags=["tours"])
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=schemas.TourSummary)
+def create_tour(
+    body: schemas.TourCreate, services: ServicesDep, _: PrincipalDep
+) -> schemas.TourSummary:
+    """Create an empty tour; teach it with POST /robots/{robot}/teach/start."""
+    return services.tours.create(body)
+
+
+@router.get("", response_model=list[schemas.TourSummary])
+def list_tours(services: ServicesDep, _: PrincipalDep) -> list[schemas.TourSummary]:
+    return services.tours.list()
+
+
+@router.get("/{tour_id}", response_model=schemas.TourGraphPublic)
+def get_tour(tour_id: int, services: ServicesDep, _: PrincipalDep) -> schemas.TourGraphPublic:
+    """The tour's graph: locations with their images, edges with counts and durations."""
+    return services.tours.graph(tour_id)

@@ -1,0 +1,1 @@
+"""Benchmark commands (``teachrepeat bench ...``): each prints a table and saves JSON."""

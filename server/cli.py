@@ -1,0 +1,68 @@
+"""The ``teachrepeat`` command: ``serve``, ``robot ...``, ``demo`` and ``bench ...``.
+
+Each sub-command lives in its own module with ``add_arguments(parser)`` and ``run(args) -> int``;
+this file only wires them together. Command modules keep heavy imports (OpenCV, MuJoCo, the
+server) inside ``run`` so that building the parser stays cheap.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+from collections.abc import Sequence
+
+# (command path, module, help). The module provides add_arguments(parser) and run(args) -> int.
+COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("serve",), "server.serve", "run the API server (and the dashboard)"),
+    (("robot", "teach"), "robot_client.teach", "replay a folder of images as a teaching tour"),
+    (("demo",), "robot_client.demo", "the simulated home, taught and navigated end to end"),
+    (("bench", "retrieval"), "server.bench.retrieval", "image retrieval on real images vs OpenCV"),
+    (("bench", "localize"), "server.bench.localize", "sequence localisation on real routes"),
+    (
+        ("bench", "navigate"),
+        "server.bench.navigate",
+        "closed-loop navigation in the simulated home",
+    ),
+    (("bench", "load"), "server.bench.load", "many robots at once against one server"),
+    (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
+)
+
+
+def _available(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser; commands whose module is not installed are left out."""
+    parser = argparse.ArgumentParser(
+        prog="teachrepeat",
+        description="Teach a camera-only robot a home in one guided tour, then send it anywhere.",
+    )
+    top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
+    for path, module, help_text in COMMANDS:
+        if not _available(module):
+            continue
+        parent = top
+        if len(path) == 2:
+            group = path[0]
+            if group not in groups:
+                gp = top.add_parser(group, help=f"{group} commands")
+                groups[group] = gp.add_subparsers(dest="subcommand", required=True, metavar="SUB")
+            parent = groups[group]
+        sub = parent.add_parser(path[-1], help=help_text, description=help_text)
+        importlib.import_module(module).add_arguments(sub)
+        sub.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``teachrepeat`` console script."""
+    args = build_parser().parse_args(argv)
+    return int(importlib.import_module(args._module).run(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,223 @@
+"""Teaching: a small state machine per robot, persisted so a crash loses at most one frame.
+
+``start`` -> mark the starting place -> frames are appended to the open path ->
+``mark "X"`` closes the open path as the edge (previous place -> X), creating X when new ->
+spin images belong to X -> more frames open the next path from X -> ... -> ``finish``.
+
+Every step that changes the graph is one transaction: an edge appears with all its images or
+not at all, and an aborted path is discarded, never stored as a broken edge.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from server import schemas
+from server.errors import Conflict, Invalid
+from server.imaging import ImageLimits, decode_jpeg
+from server.services.tours import TourService, edge_public, location_public
+from server.storage.repo import Repo, TeachingRow
+
+MIN_EDGE_IMAGES = 2
+
+
+class TeachingService:
+    """Teaching steps of every robot. ``on_change(tour_id)`` runs after each change to a graph."""
+
+    def __init__(
+        self,
+        repo: Repo,
+        limits: ImageLimits,
+        *,
+        is_navigating: Callable[[str], bool] = lambda robot: False,
+        on_change: Callable[[int], None] = lambda tour_id: None,
+    ) -> None:
+        self.repo = repo
+        self.limits = limits
+        self.tours = TourService(repo)
+        self.is_navigating = is_navigating
+        self.on_change = on_change
+
+    # --- queries --------------------------------------------------------------------------
+
+    def state(self, robot: str) -> schemas.TeachingState | None:
+        with self.repo.transaction():
+            row = self.repo.teaching(robot)
+            return None if row is None else self._state(row)
+
+    def _state(self, row: TeachingRow) -> schemas.TeachingState:
+        tour = self.repo.tour(row.tour_id)
+        current = (
+            None
+            if row.current_location_id is None
+            else self.repo.location_name(row.current_location_id)
+        )
+        counts = {t.id: (nl, ne) for t, nl, ne, _ in self.repo.tours()}
+        n_locations, n_edges = counts.get(row.tour_id, (0, 0))
+        return schemas.TeachingState(
+            tour=tour.id,
+            tour_name=tour.name,
+            current_location=current,
+            open_path_images=self.repo.pending_count(row.robot),
+            last_timestamp=row.last_timestamp,
+            locations=n_locations,
+            edges=n_edges,
+        )
+
+    def _teaching(self, robot: str, doing: str) -> TeachingRow:
+        row = self.repo.teaching(robot)
+        if row is None:
+            raise Conflict(
+                f"robot {robot!r} is not teaching, so it cannot {doing}; "
+                f"start with POST /robots/{robot}/teach/start"
+            )
+        return row
+
+    def _check_timestamp(self, row: TeachingRow, timestamp: float) -> None:
+        if row.last_timestamp is not None and timestamp < row.last_timestamp:
+            raise Invalid(
+                f"timestamp {timestamp} goes backwards: the previous image was taken at "
+                f"{row.last_timestamp}. Send frames in capture order with a monotonic clock"
+            )
+
+    # --- steps ----------------------------------------------------------------------------
+
+    def start(self, robot: str, body: schemas.TeachStart) -> schemas.TeachingState:
+        if self.is_navigating(robot):
+            raise Conflict(f"robot {robot!r} is navigating; stop it before teaching")
+        with self.repo.transaction():
+            self.repo.tour(body.tour)  # 404 when unknown
+            row = self.repo.teaching(robot)
+            if row is not None:
+                raise Conflict(
+                    f"robot {robot!r} is already teaching tour {row.tour_id}; "
+                    "finish or abort that tour first"
+                )
+            self.repo.start_teaching(robot, body.tour)
+            return self._state(self._teaching(robot, "start"))
+
+    def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.FrameResult:
+        """Append one frame to the open path."""
+        self._ready_for_frames(self._teaching(robot, "upload frames"), robot)
+        _, width, height = decode_jpeg(data, self.limits)
+        with self.repo.transaction():
+            row = self._teaching(robot, "upload frames")
+            self._ready_for_frames(row, robot)
+            self._check_timestamp(row, meta.timestamp)
+            image_id = self.repo.add_image(
+                tour_id=row.tour_id,
+                jpeg=data,
+                width=width,
+                height=height,
+                timestamp=meta.timestamp,
+                v=meta.v,
+                w=meta.w,
+                pending_robot=robot,
+            )
+            self.repo.set_teaching(
+                robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp
+            )
+            pending = self.repo.pending_count(robot)
+        return schemas.FrameResult(
+            mode="teaching",
+            image=schemas.ImageStored(image_id=image_id, width=width, height=height),
+            open_path_images=pending,
+        )
+
+    def _ready_for_frames(self, row: TeachingRow, robot: str) -> None:
+        if row.current_location_id is None:
+            raise Conflict(
+                "no place has been marked yet, so a path has nowhere to start: name the "
+                f"starting place first with POST /robots/{robot}/teach/locations"
+            )
+
+    def spin_image(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.ImageStored:
+        """Add one image taken while spinning at the current place."""
+        row = self._teaching(robot, "upload spin images")
+        self._ready_for_frames(row, robot)
+        _, width, height = decode_jpeg(data, self.limits)
+        with self.repo.transaction():
+            row = self._teaching(robot, "upload spin images")
+            self._ready_for_frames(row, robot)
+            self._check_timestamp(row, meta.timestamp)
+            image_id = self.repo.add_image(
+                tour_id=row.tour_id,
+                jpeg=data,
+                width=width,
+                height=height,
+                timestamp=meta.timestamp,
+                v=meta.v,
+                w=meta.w,
+                location_id=row.current_location_id,
+            )
+            self.repo.set_teaching(
+                robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp
+            )
+        self.on_change(row.tour_id)
+        return schemas.ImageStored(image_id=image_id, width=width, height=height)
+
+    def mark(self, robot: str, body: schemas.LocationMark) -> schemas.MarkResult:
+        """ "This is the kitchen": close the open path into the named place (new or existing)."""
+        name = body.name
+        with self.repo.transaction():
+            row = self._teaching(robot, "mark a place")
+            pending = self.repo.pending_count(robot)
+            target = self.repo.location_by_name(row.tour_id, name)
+            # a mark closes the open path unless it merely names the place we are at again
+            closes_path = row.current_location_id is not None and (
+                pending > 0 or target != row.current_location_id
+            )
+            if closes_path and pending < MIN_EDGE_IMAGES:
+                here = self.repo.location_name(row.current_location_id)  # type: ignore[arg-type]
+                raise Invalid(
+                    f"an edge needs at least {MIN_EDGE_IMAGES} images, but only {pending} "
+                    f"were uploaded since {here!r}; upload the frames of the path to "
+                    f"{name!r} first, or abort"
+                )
+            created = target is None
+            if target is None:
+                target = self.repo.add_location(row.tour_id, name)
+            edge_id: int | None = None
+            if closes_path:
+                edge_id = self.repo.add_edge(row.tour_id, row.current_location_id, target)  # type: ignore[arg-type]
+                self.repo.move_pending_to_edge(robot, edge_id)
+            self.repo.set_teaching(
+                robot, current_location_id=target, last_timestamp=row.last_timestamp
+            )
+            locations = {loc.id: loc for loc in self.repo.locations(row.tour_id)}
+            names = {i: loc.name for i, loc in locations.items()}
+            edge = None
+            if edge_id is not None:
+                edge_row = next(e for e in self.repo.edges(row.tour_id) if e.id == edge_id)
+                edge = edge_public(edge_row, names)
+            result = schemas.MarkResult(
+                location=location_public(locations[target]),
+                created=created,
+                edge=edge,
+                teaching=self._state(self._teaching(robot, "mark a place")),
+            )
+        self.on_change(row.tour_id)
+        return result
+
+    def finish(self, robot: str) -> schemas.TeachingEnded:
+        with self.repo.transaction():
+            row = self._teaching(robot, "finish")
+            pending = self.repo.pending_count(robot)
+            if pending:
+                raise Conflict(
+                    f"the open path has {pending} frames that do not end at a place: mark the "
+                    f"place where it ends (POST /robots/{robot}/teach/locations) or abort "
+                    f"(POST /robots/{robot}/teach/abort) to discard them"
+                )
+            self.repo.end_teaching(robot)
+            graph = self.tours.graph(row.tour_id)
+        return schemas.TeachingEnded(tour=graph, discarded_images=0)
+
+    def abort(self, robot: str) -> schemas.TeachingEnded:
+        """End teaching, discarding the open path only; marked places and edges stay."""
+        with self.repo.transaction():
+            row = self._teaching(robot, "abort")
+            discarded = self.repo.discard_pending(robot)
+            self.repo.end_teaching(robot)
+            graph = self.tours.graph(row.tour_id)
+        return schemas.TeachingEnded(tour=graph, discarded_images=discarded)

@@ -1,0 +1,82 @@
+"""Shared fixtures: where the real image data lives.
+
+The data folder comes from ``TEACHREPEAT_DATA`` (default: ``../shared/data`` beside the project).
+In CI (``CI=true``) a missing data folder is an error, not a skip.
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from pydantic import SecretStr
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+def data_root() -> Path:
+    return Path(os.environ.get("TEACHREPEAT_DATA", PROJECT_ROOT.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The read-only folder of real images (``corridor/``, ``nordland/``, ...)."""
+    root = data_root()
+    if not (root / "corridor").is_dir():
+        message = f"real image data not found at {root}; set TEACHREPEAT_DATA"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(message)
+        pytest.skip(message)
+    return root
+
+
+# --- API fixtures ---------------------------------------------------------------------------
+
+ADMIN_TOKEN = "admin-secret-for-tests"
+
+
+def make_jpeg(seed: int = 0, width: int = 64, height: int = 48) -> bytes:
+    """A small real JPEG with random content."""
+    from server.imaging import encode_jpeg
+
+    rng = np.random.default_rng(seed)
+    return encode_jpeg(rng.integers(0, 255, (height, width, 3), dtype=np.uint8))
+
+
+def db_dump(path: Path) -> str:
+    """Every row of every table, as SQL text: equal dumps mean an unchanged database."""
+    with sqlite3.connect(path) as conn:
+        return "\n".join(conn.iterdump())
+
+
+@dataclass
+class Api:
+    client: TestClient
+    db_path: Path
+    admin: dict[str, str]
+
+    def register(self, name: str = "rover") -> dict[str, str]:
+        r = self.client.post("/robots", json={"name": name}, headers=self.admin)
+        assert r.status_code == 201, r.text
+        return {"Authorization": f"Bearer {r.json()['token']}"}
+
+    def dump(self) -> str:
+        return db_dump(self.db_path)
+
+
+@pytest.fixture()
+def api(tmp_path: Path) -> Iterator[Api]:
+    """The app on a fresh SQLite file, driven in-process."""
+    from server.app import create_app
+    from server.config import Settings
+
+    db_path = tmp_path / "api.sqlite"
+    settings = Settings(db=db_path, admin_token=SecretStr(ADMIN_TOKEN), dashboard_port=None)
+    with TestClient(create_app(settings)) as client:
+        yield Api(client, db_path, {"Authorization": f"Bearer {ADMIN_TOKEN}"})

@@ -1,0 +1,85 @@
+"""Rules about the code itself: the pure core stays pure, the wire schemas stay light."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# The core: similarity engine, belief tracker, policy and the graph they share.
+PURE = ["server/domain.py", "server/vision", "server/belief", "server/policy"]
+PURE_ALLOWED = {"numpy", "cv2", "scipy", "networkx", "server"}
+PURE_ALLOWED_SERVER = ("server.domain", "server.vision", "server.belief", "server.policy")
+FORBIDDEN_ANYWHERE_IN_CORE = {
+    "fastapi",
+    "sqlite_utils",
+    "sqlite3",
+    "viser",
+    "starlette",
+    "pydantic",
+    "httpx",
+    "uvicorn",
+    "mujoco",
+    "robot_client",
+    "web",
+}
+
+
+def imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(), filename=str(path))
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+def python_files(spec: str) -> list[Path]:
+    target = ROOT / spec
+    return [target] if target.is_file() else sorted(target.rglob("*.py"))
+
+
+def stdlib(name: str) -> bool:
+    import sys
+
+    return name.split(".")[0] in sys.stdlib_module_names or name == "__future__"
+
+
+@pytest.mark.parametrize("spec", PURE)
+def test_core_imports_only_numpy_opencv_scipy_networkx(spec: str) -> None:
+    files = python_files(spec)
+    if not files:
+        pytest.skip(f"{spec} not written yet")
+    for path in files:
+        for name in imports(path):
+            top = name.split(".")[0]
+            assert top not in FORBIDDEN_ANYWHERE_IN_CORE, f"{path.relative_to(ROOT)} imports {name}"
+            if stdlib(name):
+                continue
+            assert top in PURE_ALLOWED, f"{path.relative_to(ROOT)} imports {name}"
+            if top == "server":
+                assert name.startswith(PURE_ALLOWED_SERVER), f"{path} imports {name}"
+
+
+def test_wire_schemas_import_pydantic_only() -> None:
+    for name in imports(ROOT / "server" / "schemas.py"):
+        assert stdlib(name) or name.split(".")[0] == "pydantic", name
+
+
+def test_routes_hold_no_sql() -> None:
+    for path in python_files("server/api"):
+        text = path.read_text()
+        for word in ("SELECT ", "INSERT ", "UPDATE ", "DELETE ", "sqlite"):
+            assert word not in text, f"{path.relative_to(ROOT)} contains {word!r}"
+
+
+def test_no_machine_paths_in_code() -> None:
+    for package in ("server", "robot_client", "web"):
+        for path in python_files(package):
+            for bad in ("'/work/", '"/work/', "'/tmp/", '"/tmp/', "'/root/", '"/root/'):
+                assert bad not in path.read_text(), f"{path.relative_to(ROOT)} holds {bad}"
