@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any, TypeVar
 
 import httpx
@@ -132,16 +133,41 @@ class TeachRepeatClient:
         return self._call(schemas.MarkResult, "POST", f"/robots/{robot}/teach/locations", json=body)
 
     def upload_frame(
-        self, robot: str, jpeg: bytes, *, timestamp: float, v: float = 0.0, w: float = 0.0
-    ) -> schemas.FrameResult:
-        return self._call(
-            schemas.FrameResult,
+        self,
+        robot: str,
+        jpeg: bytes,
+        *,
+        timestamp: float,
+        v: float = 0.0,
+        w: float = 0.0,
+        depth: Sequence[float] | None = None,
+    ) -> schemas.FrameResult | schemas.NavigationFrameResult:
+        """Send a frame: appended while teaching, answered with a motion command while
+        navigating (a :class:`~server.schemas.NavigationFrameResult`)."""
+        params: dict[str, Any] = _meta(timestamp, v, w)
+        if depth is not None:
+            params["depth"] = [round(float(r), 3) for r in depth]
+        response = self._request(
             "POST",
             f"/robots/{robot}/frames",
-            params=_meta(timestamp, v, w),
+            params=params,
             content=jpeg,
             headers={"Content-Type": "image/jpeg"},
         )
+        return _FRAME_RESULT.validate_json(response.content)
+
+    def goto(
+        self, robot: str, location: str, *, tour: int | None = None, timeout_s: float = 120.0
+    ) -> schemas.TaskPublic:
+        """Start navigating to ``location``. The first goto on a freshly taught tour may wait
+        while the server prepares it (features, weights), hence the long ``timeout_s``."""
+        body = schemas.GotoRequest(location=location, tour=tour).model_dump()
+        return self._call(
+            schemas.TaskPublic, "POST", f"/robots/{robot}/goto", json=body, timeout=timeout_s
+        )
+
+    def stop(self, robot: str) -> schemas.TaskPublic:
+        return self._call(schemas.TaskPublic, "POST", f"/robots/{robot}/stop")
 
     def upload_spin_image(
         self, robot: str, jpeg: bytes, *, timestamp: float, v: float = 0.0, w: float = 0.0
@@ -162,5 +188,10 @@ class TeachRepeatClient:
         return self._call(schemas.TeachingEnded, "POST", f"/robots/{robot}/teach/abort")
 
 
-def _meta(timestamp: float, v: float, w: float) -> dict[str, float]:
-    return schemas.FrameMeta(timestamp=timestamp, v=v, w=w).model_dump()
+def _meta(timestamp: float, v: float, w: float) -> dict[str, Any]:
+    return schemas.FrameMeta(timestamp=timestamp, v=v, w=w).model_dump(exclude_none=True)
+
+
+_FRAME_RESULT: TypeAdapter[schemas.FrameResult | schemas.NavigationFrameResult] = TypeAdapter(
+    schemas.AnyFrameResult
+)

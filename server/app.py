@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from server import schemas
 from server.api.deps import PrincipalDep
-from server.api.routes import images, robots, teach, tours
+from server.api.routes import images, navigate, robots, teach, tours
 from server.config import Settings
 from server.errors import DomainError
 from server.imaging import ImageLimits
@@ -35,6 +37,13 @@ def _validation_message(exc: RequestValidationError) -> str:
     return "invalid request - " + "; ".join(parts)
 
 
+async def _sweep_forever(services: Services, period_s: float = 1.0) -> None:
+    """Fail the tasks of robots that stopped sending frames (off the event loop)."""
+    while True:
+        await asyncio.sleep(period_s)
+        await run_in_threadpool(services.navigation.sweep)
+
+
 def create_app(settings: Settings) -> FastAPI:
     """The FastAPI application for ``settings`` (database, admin token, limits)."""
     if settings.admin_token is None:
@@ -50,8 +59,12 @@ def create_app(settings: Settings) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        yield
-        services.close()
+        watchdog = asyncio.create_task(_sweep_forever(services))
+        try:
+            yield
+        finally:
+            watchdog.cancel()
+            services.close()
 
     app = FastAPI(
         title="teachrepeat",
@@ -85,6 +98,6 @@ def create_app(settings: Settings) -> FastAPI:
         """Who the bearer token belongs to: the admin or a robot (and which)."""
         return schemas.WhoAmI(kind=principal.kind, robot=principal.robot)
 
-    for module in (tours, robots, teach, images):
+    for module in (tours, robots, teach, navigate, images):
         app.include_router(module.router, responses={"4XX": {"model": schemas.ErrorBody}})
     return app

@@ -27,6 +27,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
+    (("bench", "dashboard"), "web.bench", "robot step latency with and without a browser"),
 )
 
 

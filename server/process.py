@@ -26,6 +26,7 @@ class ServerProcess:
     proc: subprocess.Popen[str]
     url: str
     db: Path
+    dashboard_url: str | None = None
 
     def kill(self) -> None:
         """SIGKILL: no clean shutdown, as in a power cut."""
@@ -42,13 +43,30 @@ class ServerProcess:
 
 
 def start_server(
-    db: Path, *, admin_token: str = ADMIN, extra_env: dict[str, str] | None = None
+    db: Path,
+    *,
+    admin_token: str = ADMIN,
+    dashboard: bool = False,
+    extra_env: dict[str, str] | None = None,
 ) -> ServerProcess:
-    """Run ``teachrepeat serve --db DB --port 0`` and wait until it answers ``/health``."""
+    """Run ``teachrepeat serve --db DB --port 0`` and wait until it answers ``/health``.
+
+    ``dashboard``: also start the dashboard on a free port (``dashboard_url``)."""
     env = {**os.environ, "TEACHREPEAT_ADMIN_TOKEN": admin_token, **(extra_env or {})}
     env.pop("TEACHREPEAT_DB", None)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "server.cli", "serve", "--db", str(db), "--port", "0"],
+        [
+            sys.executable,
+            "-m",
+            "server.cli",
+            "serve",
+            "--db",
+            str(db),
+            "--port",
+            "0",
+            "--dashboard-port",
+            "0" if dashboard else "-1",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -58,6 +76,7 @@ def start_server(
         raise RuntimeError("no stdout pipe")
     deadline = time.monotonic() + 30
     url = None
+    dashboard_url = None
     lines = []
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
@@ -67,6 +86,10 @@ def start_server(
         found = re.search(r"teachrepeat API\s+(http://\S+)", line)
         if found:
             url = found.group(1)
+        found = re.search(r"dashboard\s+(http://\S+)", line)
+        if found:
+            dashboard_url = found.group(1)
+        if url and (dashboard_url or not dashboard):
             break
     if url is None:
         proc.kill()
@@ -77,7 +100,7 @@ def start_server(
     while time.monotonic() < deadline:
         try:
             if httpx.get(f"{url}/health", timeout=1).status_code == 200:
-                return ServerProcess(proc, url, db)
+                return ServerProcess(proc, url, db, dashboard_url)
         except httpx.TransportError:
             time.sleep(0.05)
     proc.kill()

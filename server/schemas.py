@@ -156,6 +156,12 @@ class FrameMeta(_Model):
     timestamp: float = Field(description="Capture time, seconds, non-decreasing per robot.")
     v: float = Field(default=0.0, description="Linear velocity being executed, m/s.")
     w: float = Field(default=0.0, description="Angular velocity being executed, rad/s.")
+    depth: list[float] | None = Field(
+        default=None,
+        max_length=256,
+        description="Optional depth profile: ranges in metres, leftmost ray first "
+        "(repeat the parameter: depth=1.2&depth=0.9...). Use a large number for 'nothing'.",
+    )
 
     @field_validator("timestamp", "v", "w")
     @classmethod
@@ -164,14 +170,97 @@ class FrameMeta(_Model):
             raise ValueError("must be a finite number")
         return value
 
+    @field_validator("depth")
+    @classmethod
+    def _ranges(cls, value: list[float] | None) -> list[float] | None:
+        if value is not None and any(not (r >= 0) or math.isnan(r) for r in value):
+            raise ValueError("ranges must be non-negative numbers")
+        return value
+
 
 class FrameResult(_Model):
+    """A frame taken while teaching: stored on the open path."""
+
     mode: Literal["teaching"]
     image: ImageStored
     open_path_images: int
+
+
+# --- navigation ----------------------------------------------------------------------------
+
+ActionName = Literal["rotate_and_find_edge", "navigate", "explore", "do_nothing"]
+TaskStateName = Literal["underway", "arrived", "failed", "cancelled"]
+
+
+class GotoRequest(_Model):
+    location: LocationName
+    tour: int | None = Field(
+        default=None,
+        description="Tour to navigate in; defaults to the tour the robot last used.",
+    )
+
+
+class MotionCommand(_Model):
+    """What the robot should do until its next frame is answered, or until ``ttl_s`` runs out
+    (then it stops: a robot never drives on a stale command)."""
+
+    v: float = Field(description="Linear velocity, m/s (forward positive).")
+    w: float = Field(description="Angular velocity, rad/s (counter-clockwise positive).")
+    ttl_s: float = Field(description="Seconds this command stays valid after it was sent.")
+    action: ActionName
+    edge: int | None = Field(default=None, description="Edge id the action is about.")
+    target_image_id: int | None = Field(
+        default=None, description="Image the robot is homing on (Navigate)."
+    )
+
+
+class StateProbability(_Model):
+    kind: Literal["location", "edge"]
+    id: int = Field(description="Location or edge id.")
+    name: str
+    probability: float
+
+
+class BeliefPublic(_Model):
+    top: list[StateProbability] = Field(description="Most likely states, most likely first.")
+    entropy: float = Field(description="Entropy of the belief over states, nats.")
+    localised: bool
+    localised_state: StateProbability | None = None
+
+
+class TaskPublic(_Model):
+    id: int
+    tour: int
+    goal: str
+    state: TaskStateName
+    reason: str | None = Field(default=None, description="Why it failed or was cancelled.")
+    started_at: float
+    ended_at: float | None = None
+    steps: int = Field(description="Frames answered for this task.")
+
+
+class NavigationFrameResult(_Model):
+    """A frame taken while navigating (or tracking after a task ended): the next command."""
+
+    mode: Literal["navigating"]
+    command: MotionCommand
+    task: TaskPublic | None
+    belief: BeliefPublic
+    votes: dict[str, float] = Field(description="Vote mass of every action.")
+
+
+AnyFrameResult = Annotated[FrameResult | NavigationFrameResult, Field(discriminator="mode")]
+
+
+class NavigationState(_Model):
+    tour: int
+    task: TaskPublic | None
+    belief: BeliefPublic | None
+    last_command: MotionCommand | None
 
 
 class RobotState(_Model):
     name: str
     mode: Literal["idle", "teaching", "navigating"]
     teaching: TeachingState | None = None
+    navigation: NavigationState | None = None

@@ -17,6 +17,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--db", type=Path, help="SQLite file (default: data/teachrepeat.sqlite)")
     parser.add_argument("--host", help="interface to bind (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="API port (default 8000; 0 = any free port)")
+    parser.add_argument(
+        "--dashboard-port",
+        type=int,
+        help="dashboard port (default 8080; 0 = any free port; -1 = no dashboard)",
+    )
 
 
 def admin_token_for(settings: Settings) -> SecretStr:
@@ -40,7 +45,12 @@ def token_file(settings: Settings) -> Path:
 
 
 def settings_from(args: argparse.Namespace) -> Settings:
-    overrides = {k: getattr(args, k) for k in ("db", "host", "port") if getattr(args, k, None)}
+    overrides = {
+        k: getattr(args, k) for k in ("db", "host", "port") if getattr(args, k, None) is not None
+    }
+    dashboard_port = getattr(args, "dashboard_port", None)
+    if dashboard_port is not None:
+        overrides["dashboard_port"] = None if dashboard_port < 0 else dashboard_port
     settings = Settings(**overrides)
     return settings.model_copy(update={"admin_token": admin_token_for(settings)})
 
@@ -71,6 +81,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"database         {settings.db}", flush=True)
     if token_file(settings).exists():
         print(f"admin token in   {token_file(settings)}", flush=True)
+    dashboard = None
+    if settings.dashboard_port is not None:
+        from web.dashboard import Dashboard
+
+        dashboard = Dashboard(app.state.services, host=settings.host, port=settings.dashboard_port)
+        used = dashboard.start()
+        print(f"dashboard        http://{settings.host}:{used}", flush=True)
     config = uvicorn.Config(app, log_level="warning", access_log=False)
-    uvicorn.Server(config).run(sockets=[sock])
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        if dashboard is not None:
+            dashboard.stop()
     return 0

@@ -161,6 +161,10 @@ class TransitionParams:
     """Mass moved onto a reverse edge spreads over +- this many images around the mirror point."""
     advance_quantum: float = 0.05
     """The advance is rounded to this many images so motion matrices can be cached (0 = exact)."""
+    turn_radius_m: float = 0.15
+    """Turning counts as progress along an edge: the progress speed is ``|v| + r |w|`` (m/s),
+    for the teaching run and the repeat alike. Without it an edge taught with turns on the spot
+    (``v = 0``) would hold the belief still while the robot replays the turn."""
 
     # -- kidnapping --
     teleport: float = 1e-3
@@ -217,8 +221,11 @@ def reverse_edges(graph: TourGraph) -> tuple[tuple[int, ...], ...]:
     return tuple(tuple(by_pair.get((e.target, e.source), ())) for e in graph.edges)
 
 
-def _edge_distances(graph: TourGraph) -> tuple[FloatArray, FloatArray]:
-    """Per edge: metres per image and seconds per image of the teaching run (0 when unknown)."""
+def _edge_distances(
+    graph: TourGraph, turn_radius: float = 0.0
+) -> tuple[FloatArray, FloatArray]:
+    """Per edge: progress metres (``|v| + turn_radius |w|``) per image and seconds per image
+    of the teaching run (0 when unknown)."""
     mpi = np.zeros(graph.n_edges)
     spi = np.zeros(graph.n_edges)
     for j, e in enumerate(graph.edges):
@@ -234,6 +241,9 @@ def _edge_distances(graph: TourGraph) -> tuple[FloatArray, FloatArray]:
         spi[j] = float(dts.sum()) / (n - 1)
         if len(v) == n:
             speed = np.abs(np.where(np.isfinite(v[:-1]), v[:-1], 0.0))
+            w = np.asarray(e.w, dtype=np.float64)
+            if turn_radius > 0 and len(w) == n:
+                speed = speed + turn_radius * np.abs(np.where(np.isfinite(w[:-1]), w[:-1], 0.0))
             mpi[j] = float((speed * dts).sum()) / (n - 1)
     return mpi, spi
 
@@ -252,7 +262,9 @@ def _advance_from(mpi: FloatArray, spi: FloatArray, v: float, dt: float) -> Floa
     return out
 
 
-def expected_advance(graph: TourGraph, *, v: float, dt: float) -> FloatArray:
+def expected_advance(
+    graph: TourGraph, *, v: float, dt: float, w: float = 0.0, turn_radius: float = 0.0
+) -> FloatArray:
     """Expected forward motion along every edge this step, in images.
 
     ``v`` is the current forward speed (m/s, its magnitude is used; ``nan`` = unknown) and
@@ -262,10 +274,14 @@ def expected_advance(graph: TourGraph, *, v: float, dt: float) -> FloatArray:
     is time based, ``dt / seconds_per_image``, unless the robot reports ``v == 0`` (stopped).
     Edges with fewer than two images, or without usable timestamps, get 0.
 
+    With ``turn_radius`` > 0, turning counts as progress: ``|v|`` becomes ``|v| + turn_radius
+    |w|`` here and in the teaching run (see :attr:`TransitionParams.turn_radius_m`).
+
     Returns ``(n_edges,) float64 >= 0``.
     """
-    mpi, spi = _edge_distances(graph)
-    return _advance_from(mpi, spi, float(v), float(dt))
+    mpi, spi = _edge_distances(graph, turn_radius)
+    speed = abs(float(v)) + turn_radius * abs(float(w)) if math.isfinite(v) else float(v)
+    return _advance_from(mpi, spi, speed, float(dt))
 
 
 # --------------------------------------------------------------------------------------------
@@ -423,7 +439,9 @@ class BeliefModel:
         self.prior: FloatArray = (per_state / sizes)[self.fine_state]
         self.n_valid_states = n_ok
         # teaching-run distances per image
-        self.metres_per_image, self.seconds_per_image = _edge_distances(graph)
+        self.metres_per_image, self.seconds_per_image = _edge_distances(
+            graph, self.params.turn_radius_m
+        )
         # caches
         self._structures: OrderedDict[Action, _Structure] = OrderedDict()
         self._lock = threading.Lock()  # caches are shared by the robots of one tour
@@ -442,9 +460,17 @@ class BeliefModel:
             out[L + self._valid_idx] = np.add.reduceat(belief[L:], self._valid_starts)
         return out
 
-    def expected_advance(self, *, v: float, dt: float) -> FloatArray:
+    def expected_advance(self, *, v: float, dt: float, w: float = 0.0) -> FloatArray:
         """Like :func:`expected_advance`, from cached per-edge distances. ``(n_edges,)`` images."""
-        return _advance_from(self.metres_per_image, self.seconds_per_image, float(v), float(dt))
+        return _advance_from(
+            self.metres_per_image, self.seconds_per_image, self.progress_speed(v, w), float(dt)
+        )
+
+    def progress_speed(self, v: float, w: float = 0.0) -> float:
+        """``|v| + turn_radius_m |w|`` (m/s); ``nan`` stays ``nan`` (speed unknown)."""
+        if not math.isfinite(v):
+            return float(v)
+        return abs(float(v)) + self.params.turn_radius_m * abs(float(w))
 
     def operator(
         self, action: Action, *, advance: float | npt.ArrayLike = 0.0

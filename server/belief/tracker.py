@@ -354,9 +354,10 @@ class Tracker:
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
 
     def step(
-        self, action: Action, likelihood: npt.ArrayLike, *, v: float, dt: float
+        self, action: Action, likelihood: npt.ArrayLike, *, v: float, dt: float, w: float = 0.0
     ) -> BeliefSummary:
-        """Predict with ``action`` (advance from ``v`` m/s and ``dt`` s), update, summarise."""
+        """Predict with ``action`` (advance from ``v`` m/s, ``w`` rad/s and ``dt`` s), update,
+        summarise."""
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
@@ -372,7 +373,7 @@ class Tracker:
         top_lik = float(lik.max())
         # an all-zero frame carries no information: predict only
         lik = np.maximum(lik, p.likelihood_floor * top_lik) if top_lik > 0 else np.ones(m.n_fine)
-        op = m.operator(action, advance=self._advance(v, dt))
+        op = m.operator(action, advance=self._advance(m.progress_speed(v, w), dt))
         moved = op.apply(self._belief)
         ratio = float(moved @ lik) / (float(moved.sum()) * float(lik.max()))  # scale-free
         if self._fast < 0:

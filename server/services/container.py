@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
+from server import schemas
 from server.imaging import ImageLimits
+from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
+from server.session import NavigationParams
 from server.storage.repo import Repo
 
 
@@ -18,17 +22,47 @@ class Services:
     tours: TourService
     robots: RobotService
     teaching: TeachingService
+    navigation: NavigationService
 
     @classmethod
-    def build(cls, repo: Repo, *, admin_token: str, limits: ImageLimits) -> Services:
+    def build(
+        cls,
+        repo: Repo,
+        *,
+        admin_token: str,
+        limits: ImageLimits,
+        navigation: NavigationParams | None = None,
+    ) -> Services:
+        teaching = TeachingService(repo, limits)
+        nav = NavigationService(
+            repo, limits, navigation, is_teaching=lambda robot: repo.teaching(robot) is not None
+        )
+        teaching.is_navigating = nav.is_navigating
+        teaching.on_change = nav.tour_changed
         return cls(
             repo=repo,
             admin_token=admin_token,
             limits=limits,
             tours=TourService(repo),
             robots=RobotService(repo),
-            teaching=TeachingService(repo, limits),
+            teaching=teaching,
+            navigation=nav,
         )
 
+    def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:
+        """A robot's frame: appended while teaching, answered with a command while navigating."""
+        if self.repo.teaching(robot) is not None:
+            return self.teaching.frame(robot, data, meta)
+        return self.navigation.frame(robot, data, meta)
+
+    def robot_state(self, robot: str) -> schemas.RobotState:
+        teaching = self.teaching.state(robot)
+        navigation = None if teaching else self.navigation.state(robot)
+        mode: Literal["idle", "teaching", "navigating"] = "teaching" if teaching else "idle"
+        if navigation and navigation.task and navigation.task.state == "underway":
+            mode = "navigating"
+        return schemas.RobotState(name=robot, mode=mode, teaching=teaching, navigation=navigation)
+
     def close(self) -> None:
+        self.navigation.close()
         self.repo.close()

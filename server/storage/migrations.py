@@ -104,6 +104,29 @@ def initial_schema(db: sqlite_utils.Database) -> None:
     )
 
 
+@migration(2)
+def navigation_tasks(db: sqlite_utils.Database) -> None:
+    """Each robot's tour, its current or last navigation task and a belief snapshot, so a
+    restarted server resumes navigation instead of starting from a uniform belief."""
+    db.execute(
+        """
+        CREATE TABLE navigation (
+            robot TEXT PRIMARY KEY REFERENCES robots(name) ON DELETE CASCADE,
+            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
+            task_id INTEGER NOT NULL,
+            goal_location_id INTEGER NOT NULL REFERENCES locations(id),
+            state TEXT NOT NULL CHECK (state IN ('underway', 'arrived', 'failed', 'cancelled')),
+            reason TEXT,
+            started_at REAL NOT NULL,
+            ended_at REAL,
+            steps INTEGER NOT NULL DEFAULT 0,
+            belief BLOB,                       -- (n_fine,) float32 snapshot
+            belief_images INTEGER,             -- tour images when the snapshot was taken
+            belief_at REAL
+        )"""
+    )
+
+
 def current_version(db: sqlite_utils.Database) -> int:
     if "schema_migrations" not in db.table_names():
         return 0

@@ -78,6 +78,21 @@ class TeachingRow:
     started_at: float
 
 
+@dataclass(frozen=True)
+class NavigationRow:
+    robot: str
+    tour_id: int
+    task_id: int
+    goal_location_id: int
+    state: str
+    reason: str | None
+    started_at: float
+    ended_at: float | None
+    steps: int
+    belief: bytes | None = None
+    belief_images: int | None = None
+
+
 class Repo:
     """Typed access to one teachrepeat database file (or ``":memory:"``)."""
 
@@ -406,6 +421,57 @@ class Repo:
 
     def end_teaching(self, robot: str) -> None:
         self._x("DELETE FROM teaching WHERE robot = ?", (robot,))
+
+    # --- navigation ---------------------------------------------------------------------
+
+    def navigation(self, robot: str) -> NavigationRow | None:
+        rows = self._q(
+            "SELECT robot, tour_id, task_id, goal_location_id, state, reason, started_at, "
+            "ended_at, steps, belief, belief_images FROM navigation WHERE robot = ?",
+            (robot,),
+        )
+        if not rows:
+            return None
+        r = rows[0]
+        return NavigationRow(
+            robot=r[0],
+            tour_id=r[1],
+            task_id=r[2],
+            goal_location_id=r[3],
+            state=r[4],
+            reason=r[5],
+            started_at=r[6],
+            ended_at=r[7],
+            steps=r[8],
+            belief=None if r[9] is None else bytes(r[9]),
+            belief_images=r[10],
+        )
+
+    def next_task_id(self) -> int:
+        return int(self._q("SELECT COALESCE(MAX(task_id), 0) + 1 FROM navigation")[0][0])
+
+    def save_navigation(self, row: NavigationRow) -> None:
+        """Insert or replace the robot's navigation row (one transaction)."""
+        with self.transaction():
+            self._x(
+                "INSERT OR REPLACE INTO navigation (robot, tour_id, task_id, goal_location_id, "
+                "state, reason, started_at, ended_at, steps, belief, belief_images, belief_at) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    row.robot,
+                    row.tour_id,
+                    row.task_id,
+                    row.goal_location_id,
+                    row.state,
+                    row.reason,
+                    row.started_at,
+                    row.ended_at,
+                    row.steps,
+                    row.belief,
+                    row.belief_images,
+                    time.time(),
+                ),
+            )
 
     def short_edges(self) -> list[int]:
         """Ids of edges with fewer than 2 images (must always be empty: used by crash tests)."""

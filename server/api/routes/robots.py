@@ -26,7 +26,4 @@ def list_robots(services: ServicesDep, _: AdminDep) -> list[schemas.RobotPublic]
 @router.get("/{robot}/state", response_model=schemas.RobotState)
 def robot_state(robot: RobotDep, services: ServicesDep) -> schemas.RobotState:
     """Mode (idle, teaching, navigating) and what the robot is doing."""
-    teaching = services.teaching.state(robot)
-    return schemas.RobotState(
-        name=robot, mode="teaching" if teaching else "idle", teaching=teaching
-    )
+    return services.robot_state(robot)

@@ -51,10 +51,11 @@ def abort(robot: RobotDep, services: ServicesDep) -> schemas.TeachingEnded:
     return services.teaching.abort(robot)
 
 
-@router.post("/frames", response_model=schemas.FrameResult, openapi_extra=IMAGE_BODY_OPENAPI)
+@router.post("/frames", response_model=schemas.AnyFrameResult, openapi_extra=IMAGE_BODY_OPENAPI)
 async def frame(
     robot: RobotDep, services: ServicesDep, meta: FrameQuery, body: ImageBodyDep
-) -> schemas.FrameResult:
-    """A camera frame (JPEG body) with its timestamp and odometry. While teaching it is
-    appended to the open path."""
-    return await run_in_threadpool(services.teaching.frame, robot, body, meta)
+) -> schemas.AnyFrameResult:
+    """A camera frame (JPEG body) with its timestamp, odometry and optional depth profile.
+    While teaching it is appended to the open path; while navigating it is answered with the
+    next motion command."""
+    return await run_in_threadpool(services.frame, robot, body, meta)

@@ -1,0 +1,129 @@
+"""The teaching guide: a scripted person walks the simulated robot through the home.
+
+It uses the same client and REST API a real user would: start teaching, stream the frames of
+each path with the motion being executed, say "this is the kitchen" on arrival, spin there
+(the spin images become the place's images), and finish. Steering uses the simulator's ground
+truth, as a person leading the robot would use their eyes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+
+from robot_client.client import TeachRepeatClient
+from robot_client.sim.floorplan import FloorPlan
+from robot_client.sim.paths import FollowParams, Step, drive_to, spin, turn_to
+from robot_client.sim.robot import SimulatedRobot
+from robot_client.sim.world import Pose
+from server import schemas
+
+DEFAULT_ROUTE: tuple[str, ...] = (
+    "entry",
+    "living room",
+    "hall",
+    "bedroom",
+    "hall",
+    "guest room",
+    "hall",
+    "bathroom",
+    "hall",
+    "office",
+    "hall",
+    "kitchen",
+    "living room",
+    "entry",
+)
+"""A walk that teaches every place and a way to and from each: the hall is the hub."""
+
+
+@dataclass(frozen=True)
+class GuideParams:
+    """``spin_every`` (3): keep every n-th frame of a spin as a place image (about 10 degrees
+    apart at the default spin speed). ``spin_w`` (0.6 rad/s). ``jpeg_quality`` (90).
+    ``clearance_m`` (0.3): how far from walls the guide walks."""
+
+    spin_every: int = 3
+    spin_w: float = 0.6
+    jpeg_quality: int = 90
+    clearance_m: float = 0.3
+    follow: FollowParams = field(default_factory=FollowParams)
+
+
+ProgressHook = Callable[[str], None]
+
+
+def teach_route(
+    client: TeachRepeatClient,
+    robot_name: str,
+    robot: SimulatedRobot,
+    plan: FloorPlan,
+    *,
+    tour: str,
+    route: Sequence[str] = DEFAULT_ROUTE,
+    params: GuideParams = GuideParams(),
+    on_frame: ProgressHook | None = None,
+) -> schemas.TourGraphPublic:
+    """Teach ``tour`` by walking ``route`` (place names of ``plan``); returns the tour graph.
+
+    The robot is first put at the route's first place. Every place is spun at on its first
+    visit only; later visits just close the path into it.
+    """
+    places = {p.name: p for p in plan.places}
+    unknown = [name for name in route if name not in places]
+    if unknown:
+        raise ValueError(f"route names unknown places {unknown}; the plan has {sorted(places)}")
+    first = places[route[0]]
+    robot.teleport(Pose(first.x, first.y, first.yaw))
+    tour_id = client.tour_named(tour, create=True).id
+    client.start_teaching(robot_name, tour_id)
+    visited: set[str] = set()
+
+    def jpeg() -> bytes:
+        image = robot.read()
+        if image is None:
+            raise RuntimeError("the simulated camera returned no frame")
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, params.jpeg_quality])
+        if not ok:
+            raise RuntimeError("could not encode a frame")
+        return buf.tobytes()
+
+    def arrive(name: str) -> None:
+        client.mark_location(robot_name, name)
+        if name in visited:
+            return
+        visited.add(name)
+        for k, step in enumerate(spin(robot, turns=1.0, w=params.spin_w, dt=params.follow.dt)):
+            if k % params.spin_every == 0:
+                client.upload_spin_image(robot_name, jpeg(), timestamp=step.t, v=step.v, w=step.w)
+                if on_frame:
+                    on_frame(f"spin {name}")
+
+    try:
+        arrive(route[0])
+        for name in route[1:]:
+            place = places[name]
+            for step in walk_to(robot, place.x, place.y, place.yaw, params):
+                client.upload_frame(robot_name, jpeg(), timestamp=step.t, v=step.v, w=step.w)
+                if on_frame:
+                    on_frame(f"to {name}")
+            arrive(name)
+        ended = client.finish_teaching(robot_name)
+    except BaseException:
+        client.abort_teaching(robot_name)
+        raise
+    return ended.tour
+
+
+def walk_to(
+    robot: SimulatedRobot, x: float, y: float, yaw: float, params: GuideParams
+) -> Iterator[Step]:
+    """Drive to ``(x, y)`` and face ``yaw``, yielding each control step (fails loudly when the
+    robot gets stuck)."""
+    for step in drive_to(robot, (x, y), clearance=params.clearance_m, params=params.follow):
+        if step.failed:
+            raise RuntimeError(f"the guide got stuck at {step.pose} on its way to ({x}, {y})")
+        yield step
+    yield from turn_to(robot, yaw, dt=params.follow.dt)

@@ -1,0 +1,561 @@
+"""The work behind ``teachrepeat bench retrieval`` (imported by :mod:`server.bench.retrieval`
+inside ``run`` so that building the CLI parser stays cheap)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from server.bench.common import machine, stats
+from server.bench.common import write_json as _write_json
+from server.vision.features import FeatureParams, ImageFeatures, extract
+from server.vision.index import EngineParams, TourIndex, learn_weights
+
+Image = npt.NDArray[np.uint8]
+NORDLAND_TOLERANCES = tuple(range(0, 11))
+RATIO = 0.75
+
+
+# ------------------------------------------------------------------------------ data
+
+
+def _read(path: Path) -> Image:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise FileNotFoundError(f"cannot read image {path}")
+    return np.asarray(img, np.uint8)
+
+
+@dataclass
+class Datasets:
+    corridor_ref: list[Image]
+    corridor_query: list[Image]
+    corridor_gt: dict[int, list[int]]
+    summer: list[Image]
+    winter: list[Image]
+    triplets: list[Image]
+    triplet_place: list[int]
+    ukbench: list[Image]
+
+
+def load(data: Path, quick: bool) -> Datasets:
+    cref = sorted((data / "corridor" / "ref").glob("*.jpg"))
+    cqry = sorted((data / "corridor" / "query").glob("*.jpg"))
+    gt_raw = json.loads((data / "corridor" / "ground_truth.json").read_text())
+    gt = {int(k): [int(x) for x in v] for k, v in gt_raw.items()}
+    summer = sorted((data / "nordland" / "summer").glob("*.png"))
+    winter = sorted((data / "nordland" / "winter").glob("*.png"))
+    if quick:
+        summer, winter = summer[:300], winter[:300]
+    trip = sorted((data / "triplets").glob("p*/i*/*.jpg"))
+    places = [int(p.parent.parent.name[1:]) for p in trip]
+    ukb = sorted((data / "ukbench").glob("*.jpg"))
+    return Datasets(
+        corridor_ref=[_read(p) for p in cref],
+        corridor_query=[_read(p) for p in cqry],
+        corridor_gt=gt,
+        summer=[_read(p) for p in summer],
+        winter=[_read(p) for p in winter],
+        triplets=[_read(p) for p in trip],
+        triplet_place=places,
+        ukbench=[_read(p) for p in ukb],
+    )
+
+
+# ------------------------------------------------------------------------------ methods
+
+
+class Method:
+    """A retrieval method: ``build(refs, states)`` then ``rank(query) -> image indices``."""
+
+    name = "method"
+
+    def prepare(self, images: Sequence[Image]) -> list[Any]:
+        raise NotImplementedError
+
+    def build(self, refs: list[Any], states: Sequence[int], learn_groups: Sequence[int]) -> None:
+        raise NotImplementedError
+
+    def rank(self, query: Any) -> npt.NDArray[np.int64]:
+        raise NotImplementedError
+
+
+class Engine(Method):
+    def __init__(self, params: EngineParams, *, learn: bool = True, name: str = "engine") -> None:
+        self.params = params
+        self.learn = learn
+        self.name = name
+        self.index = TourIndex(params)
+        self.learned: list[list[float]] = []
+
+    def prepare(self, images: Sequence[Image]) -> list[ImageFeatures]:
+        return [extract(im, self.params.features) for im in images]
+
+    def build(
+        self, refs: list[ImageFeatures], states: Sequence[int], learn_groups: Sequence[int]
+    ) -> None:
+        self.index = TourIndex(self.params)
+        self.index.add(refs, states)
+        if self.learn:
+            w = learn_weights(self.index.signatures, learn_groups, params=self.params)
+            self.index.set_weights(w)
+            self.learned.append([round(float(x), 4) for x in w])
+
+    def rank(self, query: ImageFeatures) -> npt.NDArray[np.int64]:
+        sim = self.index.query(query)
+        return np.argsort(-sim.image, kind="stable").astype(np.int64)
+
+
+@dataclass
+class OrbImage:
+    keypoints: npt.NDArray[np.float32]
+    descriptors: npt.NDArray[np.uint8] | None
+
+
+class Baseline(Method):
+    """ORB-500, BFMatcher(NORM_HAMMING).knnMatch(k=2) + ratio 0.75 against every image."""
+
+    name = "baseline"
+
+    def __init__(self) -> None:
+        self.orb = cv2.ORB_create(nfeatures=500)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self.refs: list[OrbImage] = []
+
+    def prepare_one(self, image: Image) -> OrbImage:
+        grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+        kps, desc = self.orb.detectAndCompute(grey, None)
+        pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        return OrbImage(pts, desc)
+
+    def prepare(self, images: Sequence[Image]) -> list[OrbImage]:
+        return [self.prepare_one(im) for im in images]
+
+    def build(
+        self, refs: list[OrbImage], states: Sequence[int], learn_groups: Sequence[int]
+    ) -> None:
+        self.refs = refs
+
+    def good_matches(self, q: OrbImage, r: OrbImage) -> int:
+        if q.descriptors is None or r.descriptors is None or len(r.descriptors) < 2:
+            return 0
+        good = 0
+        for pair in self.matcher.knnMatch(q.descriptors, r.descriptors, k=2):
+            if len(pair) == 2 and pair[0].distance < RATIO * pair[1].distance:
+                good += 1
+        return good
+
+    def scores(self, q: OrbImage) -> npt.NDArray[np.float64]:
+        return np.array([self.good_matches(q, r) for r in self.refs], np.float64)
+
+    def rank(self, query: OrbImage) -> npt.NDArray[np.int64]:
+        return np.argsort(-self.scores(query), kind="stable").astype(np.int64)
+
+
+# ------------------------------------------------------------------------------ tasks
+
+
+def corridor(method: Method, ds: Datasets) -> dict[str, Any]:
+    refs = method.prepare(ds.corridor_ref)
+    qs = method.prepare(ds.corridor_query)
+    n = len(refs)
+    method.build(refs, np.arange(n), np.arange(n) // 5)
+    hit1 = hit5 = 0
+    for i, q in enumerate(qs):
+        ranked = method.rank(q)
+        truth = set(ds.corridor_gt.get(i, []))
+        hit1 += int(ranked[0]) in truth
+        hit5 += bool(truth.intersection(int(x) for x in ranked[:5]))
+    return {"recall@1": hit1 / len(qs), "recall@5": hit5 / len(qs), "n_queries": len(qs)}
+
+
+def nordland(method: Method, ds: Datasets) -> dict[str, Any]:
+    feats = {"summer": method.prepare(ds.summer), "winter": method.prepare(ds.winter)}
+    per_dir: dict[str, list[float]] = {}
+    for src, dst in (("summer", "winter"), ("winter", "summer")):
+        refs = feats[dst]
+        n = len(refs)
+        method.build(refs, np.arange(n), np.arange(n) // 10)
+        err = np.array(
+            [abs(int(method.rank(q)[0]) - i) for i, q in enumerate(feats[src])], np.int64
+        )
+        per_dir[f"{src}->{dst}"] = [float(np.mean(err <= t)) for t in NORDLAND_TOLERANCES]
+    curves = np.array(list(per_dir.values()))
+    mean = curves.mean(axis=0)
+    return {
+        "recall@1_tol1": float(mean[1]),
+        "recall@1_tol10": float(mean[10]),
+        "curve": {"tolerance": list(NORDLAND_TOLERANCES), **per_dir, "mean": mean.tolist()},
+        "n_queries": int(sum(len(v) for v in feats.values())),
+    }
+
+
+def triplets(method: Method, ds: Datasets) -> dict[str, Any]:
+    feats = method.prepare(ds.triplets)
+    places = np.asarray(ds.triplet_place)
+    hits = 0
+    for i in range(len(feats)):
+        others = [j for j in range(len(feats)) if j != i]
+        method.build([feats[j] for j in others], places[others], places[others])
+        best = others[int(method.rank(feats[i])[0])]
+        hits += int(places[best] == places[i])
+    return {"top1": hits / len(feats), "n_queries": len(feats)}
+
+
+def ukbench(method: Method, ds: Datasets) -> dict[str, Any]:
+    feats = method.prepare(ds.ukbench)
+    n = len(feats)
+    group = np.arange(n) // 4
+    method.build(feats, np.arange(n), group)
+    total = 0
+    for i, q in enumerate(feats):
+        top = method.rank(q)[:4]
+        total += int(np.sum(group[top] == group[i]))
+    best = float(sum(min(4, int(np.sum(group == g))) for g in group)) / n
+    return {"score": total / n, "max_possible": best, "n_queries": n}
+
+
+# ------------------------------------------------------------------------------ speed
+
+
+def synthesise(images: Sequence[Image], count: int, seed: int) -> list[Image]:
+    """``count`` 320x240 variants of ``images``: random crops (70-100 % of each side),
+    brightness x0.6-1.4 and horizontal flips."""
+    rng = np.random.default_rng(seed)
+    out: list[Image] = []
+    for k in range(count):
+        src = images[int(rng.integers(len(images)))] if k >= len(images) else images[k]
+        h, w = src.shape[:2]
+        fw, fh = rng.uniform(0.7, 1.0, size=2)
+        cw, ch = max(8, int(w * fw)), max(8, int(h * fh))
+        x0 = int(rng.integers(0, w - cw + 1))
+        y0 = int(rng.integers(0, h - ch + 1))
+        crop = cv2.resize(src[y0 : y0 + ch, x0 : x0 + cw], (320, 240), interpolation=cv2.INTER_AREA)
+        crop = cv2.convertScaleAbs(crop, alpha=float(rng.uniform(0.6, 1.4)))
+        if rng.random() < 0.5:
+            crop = np.ascontiguousarray(crop[:, ::-1])
+        out.append(np.asarray(crop, np.uint8))
+    return out
+
+
+def _timeit(fn: Callable[[], Any], repeat: int) -> list[float]:
+    out = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        out.append((time.perf_counter() - t) * 1e3)
+    return out
+
+
+def speed(
+    ds: Datasets,
+    sizes: Sequence[int],
+    *,
+    params: EngineParams,
+    n_queries: int,
+    baseline_queries: Sequence[int],
+    images_per_state: int,
+    pool: int,
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """Per-query time on synthesised tours; returns (engine, baseline, extraction)."""
+    base = ds.triplets + ds.ukbench + ds.corridor_ref + ds.corridor_query
+    pool_imgs = synthesise(base, pool, seed=1)
+    query_imgs = synthesise(base, max(n_queries, 10), seed=2)
+    pool_feats = [extract(im, params.features) for im in pool_imgs]
+    query_feats = [extract(im, params.features) for im in query_imgs]
+
+    frame = query_imgs[0]
+    ext = {
+        "engine_ms_p50": stats(_timeit(lambda: extract(frame, params.features), 200))["p50"],
+    }
+    bl = Baseline()
+    ext["baseline_orb500_ms_p50"] = stats(_timeit(lambda: bl.prepare_one(frame), 50))["p50"]
+    pool_orb = bl.prepare(pool_imgs[: min(pool, 1000)])
+    query_orb = bl.prepare(query_imgs[:10])
+
+    engine: dict[str, Any] = {}
+    baseline: dict[str, Any] = {}
+    rng = np.random.default_rng(3)
+    for si, n in enumerate(sizes):
+        idx = TourIndex(params)
+        states = np.arange(n) // images_per_state
+        chunk = 10_000
+        for lo in range(0, n, chunk):
+            hi = min(n, lo + chunk)
+            feats = [pool_feats[(k * 7919) % len(pool_feats)] for k in range(lo, hi)]
+            idx.add(feats, states[lo:hi])
+        if n > len(pool_feats):  # tiled copies: jitter signatures so that rankings are not ties
+            sig = idx.signatures
+            sig += rng.normal(0, 0.01, size=sig.shape).astype(np.float32)
+            idx.set_block_signatures(sig)
+        for f in query_feats[:3]:
+            idx.query(f)  # warm-up
+        first, second, total, cands = [], [], [], []
+        for k in range(n_queries):
+            f = query_feats[k % len(query_feats)]
+            t = time.perf_counter()
+            sim = idx.query(f)
+            total.append((time.perf_counter() - t) * 1e3)
+            first.append(sim.first_pass_ms)
+            second.append(sim.second_pass_ms)
+            cands.append(len(sim.candidates))
+        fp = stats(first)
+        engine[str(n)] = {
+            "total_ms_p50": stats(total)["p50"],
+            "total_ms_p95": stats(total)["p95"],
+            "first_pass_ms_p50": fp["p50"],
+            "second_pass_ms_p50": stats(second)["p50"],
+            "bytes_per_image": idx.bytes_per_image,
+            "comparisons_per_s": n / (fp["p50"] / 1e3) if fp["p50"] > 0 else float("inf"),
+            "n_states": int(states.max()) + 1,
+            "candidates_p50": float(np.median(cands)),
+            "n_queries": n_queries,
+        }
+        del idx
+
+        nq = baseline_queries[min(si, len(baseline_queries) - 1)]
+        refs = [pool_orb[(k * 7919) % len(pool_orb)] for k in range(n)]
+        bl.build(refs, states, states)
+        times = []
+        for k in range(nq):
+            q = query_orb[k % len(query_orb)]
+            t = time.perf_counter()
+            bl.rank(q)
+            times.append((time.perf_counter() - t) * 1e3)
+        n_desc = np.mean([0 if r.descriptors is None else len(r.descriptors) for r in pool_orb])
+        st = stats(times)
+        baseline[str(n)] = {
+            "total_ms_p50": st["p50"],
+            "total_ms_p95": st["p95"],
+            "first_pass_ms_p50": None,
+            "second_pass_ms_p50": st["p50"],
+            "bytes_per_image": float(n_desc * (32 + 8)),
+            "n_queries": nq,
+        }
+        engine[str(n)]["speedup_vs_baseline"] = st["p50"] / max(
+            engine[str(n)]["total_ms_p50"], 1e-9
+        )
+        print(
+            f"  speed n={n}: engine {engine[str(n)]['total_ms_p50']:.2f} ms "
+            f"(first {fp['p50']:.2f}, {engine[str(n)]['candidates_p50']:.0f} candidates), "
+            f"baseline {st['p50']:.1f} ms over {nq} queries",
+            flush=True,
+        )
+    notes = {
+        "pool": pool,
+        "images_per_state": images_per_state,
+        "tiling": "tours larger than the pool repeat pool features (signatures jittered by "
+        "N(0, 0.01)); the baseline stores the ORB features of the first 1000 pool images "
+        "cyclically. Times are measured, never extrapolated; baseline query counts are in "
+        "speed.<n>.n_queries.",
+    }
+    ext["notes"] = notes
+    return engine, baseline, ext
+
+
+# ------------------------------------------------------------------------------ driver
+
+
+def accuracy(method: Method, ds: Datasets) -> dict[str, Any]:
+    t = time.perf_counter()
+    out = {
+        "corridor": corridor(method, ds),
+        "nordland": nordland(method, ds),
+        "triplets": triplets(method, ds),
+        "ukbench": ukbench(method, ds),
+    }
+    out["accuracy_seconds"] = time.perf_counter() - t
+    return out
+
+
+def _summary(acc: dict[str, Any]) -> str:
+    return (
+        f"corridor r@1 {acc['corridor']['recall@1']:.3f} r@5 {acc['corridor']['recall@5']:.3f} | "
+        f"nordland tol1 {acc['nordland']['recall@1_tol1']:.3f} "
+        f"tol10 {acc['nordland']['recall@1_tol10']:.3f} | "
+        f"triplets {acc['triplets']['top1']:.3f} | ukbench {acc['ukbench']['score']:.2f}"
+    )
+
+
+def run_all(args: argparse.Namespace) -> dict[str, Any]:
+    cv2.setNumThreads(1)
+    quick = bool(args.quick)
+    ds = load(Path(args.data), quick)
+    sizes_arg = args.sizes or ("300" if quick else "1000,10000,100000")
+    sizes = [int(s) for s in sizes_arg.split(",") if s.strip()]
+    bq = [int(s) for s in str(args.baseline_queries).split(",") if s.strip()]
+    params = EngineParams()
+    t0 = time.perf_counter()
+
+    engine_method = Engine(params)
+    engine = accuracy(engine_method, ds)
+    engine["learned_weights"] = engine_method.learned
+    print("engine  :", _summary(engine), flush=True)
+    baseline = accuracy(Baseline(), ds)
+    print("baseline:", _summary(baseline), flush=True)
+
+    variants: dict[str, Any] = {}
+    if not (quick or args.no_variants):
+        other_geo = replace(params, geometric=not params.geometric)
+        for name, method in (
+            (f"geometric_{'on' if other_geo.geometric else 'off'}", Engine(other_geo)),
+            ("default_weights", Engine(params, learn=False)),
+            ("features_100", Engine(replace(params, features=FeatureParams(n_features=100)))),
+            ("orb", Engine(replace(params, features=FeatureParams(descriptor="orb")))),
+        ):
+            variants[name] = accuracy(method, ds)
+            print(f"{name:16s}:", _summary(variants[name]), flush=True)
+
+    eng_speed, base_speed, extraction = speed(
+        ds,
+        sizes,
+        params=params,
+        n_queries=20 if quick else args.queries,
+        baseline_queries=[min(b, 3) for b in bq] if quick else bq,
+        images_per_state=args.images_per_state,
+        pool=min(args.pool, 200) if quick else args.pool,
+    )
+    engine["speed"] = eng_speed
+    baseline["speed"] = base_speed
+    engine["extraction"] = {"ms_p50": extraction["engine_ms_p50"], "size": "320x240"}
+    baseline["extraction"] = {"ms_p50": extraction["baseline_orb500_ms_p50"], "size": "320x240"}
+    return {
+        "engine": engine,
+        "baseline": baseline,
+        "variants": variants,
+        "meta": {
+            "quick": quick,
+            "data": str(Path(args.data).resolve()),
+            "engine_params": _params_dict(params),
+            "baseline": "ORB nfeatures=500 on the original image, BFMatcher NORM_HAMMING "
+            "knnMatch k=2, ratio 0.75, best = most good matches, every stored image",
+            "threads": "cv2.setNumThreads(1), OMP/OPENBLAS/MKL_NUM_THREADS=1",
+            "speed_setup": extraction["notes"],
+            "protocol": {
+                "corridor": "ref = index (state = each image), query -> ref, ground_truth.json",
+                "nordland": "single images, state = each reference image, both directions "
+                "averaged; tolerance in frames; learned weights use groups of 10 references",
+                "triplets": "leave-one-out over 30 images, state = place",
+                "ukbench": "query included in the database, mean same-group count in top 4",
+            },
+            "seconds": time.perf_counter() - t0,
+        },
+    }
+
+
+def _params_dict(params: EngineParams) -> dict[str, Any]:
+    from dataclasses import asdict
+
+    return asdict(params)
+
+
+def format_table(results: dict[str, Any]) -> str:
+    e, b = results["engine"], results["baseline"]
+    rows = [
+        ("corridor recall@1", e["corridor"]["recall@1"], b["corridor"]["recall@1"]),
+        ("corridor recall@5", e["corridor"]["recall@5"], b["corridor"]["recall@5"]),
+        ("nordland recall@1 +-1", e["nordland"]["recall@1_tol1"], b["nordland"]["recall@1_tol1"]),
+        (
+            "nordland recall@1 +-10",
+            e["nordland"]["recall@1_tol10"],
+            b["nordland"]["recall@1_tol10"],
+        ),
+        ("triplets top-1", e["triplets"]["top1"], b["triplets"]["top1"]),
+        ("ukbench score (of 4)", e["ukbench"]["score"], b["ukbench"]["score"]),
+    ]
+    for n, s in e["speed"].items():
+        bs = b["speed"][n]
+        rows.append((f"{n} images: total ms p50", s["total_ms_p50"], bs["total_ms_p50"]))
+        rows.append((f"{n} images: total ms p95", s["total_ms_p95"], bs["total_ms_p95"]))
+        rows.append((f"{n} images: first pass ms p50", s["first_pass_ms_p50"], float("nan")))
+        rows.append((f"{n} images: second pass ms p50", s["second_pass_ms_p50"], float("nan")))
+        rows.append((f"{n} images: bytes/image", s["bytes_per_image"], bs["bytes_per_image"]))
+    lines = [f"{'metric':34s} {'engine':>12s} {'baseline':>12s}"]
+    for name, ev, bv in rows:
+        lines.append(f"{name:34s} {ev:12.3f} {bv:12.3f}")
+    lines.append(
+        f"extraction ms p50 (320x240): engine {e['extraction']['ms_p50']:.2f}, "
+        f"ORB-500 {b['extraction']['ms_p50']:.2f}"
+    )
+    return "\n".join(lines)
+
+
+def write_json(results: dict[str, Any], path: Path) -> None:
+    _write_json(path, results)
+
+
+def plot_nordland(results: dict[str, Any], path: Path) -> None:
+    """Recall@1 against tolerance (frames) on Nordland, drawn with OpenCV."""
+    w, h, m = 640, 420, 60
+    img = np.full((h, w, 3), 255, np.uint8)
+    tol = results["engine"]["nordland"]["curve"]["tolerance"]
+    tmax = max(tol)
+
+    def xy(t: float, r: float) -> tuple[int, int]:
+        return int(m + (w - 2 * m) * t / tmax), int(h - m - (h - 2 * m) * r)
+
+    for r in np.linspace(0, 1, 6):
+        cv2.line(img, xy(0, r), xy(tmax, r), (225, 225, 225), 1)
+        cv2.putText(
+            img,
+            f"{r:.1f}",
+            (10, xy(0, r)[1] + 5),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (0, 0, 0),
+            1,
+            cv2.LINE_AA,
+        )
+    for t in tol:
+        cv2.putText(
+            img,
+            str(t),
+            (xy(t, 0)[0] - 5, h - m + 20),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (0, 0, 0),
+            1,
+            cv2.LINE_AA,
+        )
+    cv2.rectangle(img, xy(0, 1), xy(tmax, 0), (0, 0, 0), 1)
+    series = [
+        ("engine summer->winter", "engine", "summer->winter", (200, 80, 0), 2),
+        ("engine winter->summer", "engine", "winter->summer", (255, 160, 60), 2),
+        ("baseline summer->winter", "baseline", "summer->winter", (0, 0, 200), 1),
+        ("baseline winter->summer", "baseline", "winter->summer", (80, 80, 255), 1),
+    ]
+    for k, (label, who, key, colour, thick) in enumerate(series):
+        ys = results[who]["nordland"]["curve"][key]
+        pts = np.array([xy(t, r) for t, r in zip(tol, ys, strict=True)], np.int32)
+        cv2.polylines(img, [pts], False, colour, thick, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            label,
+            (m + 10, m + 20 + 20 * k),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.5,
+            colour,
+            1,
+            cv2.LINE_AA,
+        )
+    cv2.putText(
+        img,
+        "Nordland recall@1 vs tolerance (frames)",
+        (m, 30),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.6,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), img)

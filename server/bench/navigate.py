@@ -1,0 +1,108 @@
+"""``teachrepeat bench navigate``: closed-loop navigation in the simulated home.
+
+One teaching tour (the default guide route, taught in the ``same`` home), then N trials in the
+chosen condition, each from a random free pose (every fourth one inside the look-alike rooms)
+to a random place. The robot is carried between trials without being told: every trial starts
+with a kidnapping. Success = the robot says "arrived" within 0.5 m of the place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from server.bench.common import stats, write_json
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--trials", type=int, default=50, help="navigation trials (default 50)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--condition",
+        choices=("same", "lighting", "moved"),
+        default="same",
+        help="how the home differs from when it was taught",
+    )
+    parser.add_argument("--max-steps", type=int, default=1500, help="frames per trial at most")
+    parser.add_argument("--json", type=Path, default=None, help="write the results here")
+
+
+def _start_pose(world: Any, plan: Any, rng: np.random.Generator, trial: int) -> Any:
+    from robot_client.sim.world import Pose
+
+    aliases = [name for group in plan.aliases for name in group] if plan.aliases else []
+    if aliases and trial % 4 == 3:
+        place = next(p for p in plan.places if p.name == aliases[trial // 4 % len(aliases)])
+        for _ in range(100):
+            x = place.x + rng.uniform(-0.8, 0.8)
+            y = place.y + rng.uniform(-0.8, 0.8)
+            if not world.collides(x, y, 0.3):
+                return Pose(x, y, rng.uniform(-np.pi, np.pi))
+    return world.free_random_pose(rng)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from robot_client.client import TeachRepeatClient
+    from robot_client.guide import teach_route
+    from robot_client.sim import SimulatedRobot, SimWorld, load_plan
+    from robot_client.trial import run_trial
+    from server.process import ADMIN, start_server
+
+    plan = load_plan()
+    rng = random.Random(args.seed)
+    np_rng = np.random.default_rng(args.seed)
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        server = start_server(Path(tmp) / "bench.sqlite")
+        try:
+            with TeachRepeatClient(server.url, ADMIN) as admin:
+                token = admin.register_robot("bench").token
+            with TeachRepeatClient(server.url, token) as client:
+                with SimWorld(plan, condition="same", seed=args.seed) as world:
+                    robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
+                    graph = teach_route(client, "bench", robot, plan, tour="home")
+                print(f"taught {len(graph.locations)} places, {len(graph.edges)} edges")
+                names = [p.name for p in plan.places]
+                with SimWorld(plan, condition=args.condition, seed=args.seed) as world:
+                    robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
+                    for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
+                        robot.teleport(_start_pose(world, plan, np_rng, trial))
+                        goal = rng.choice(names)
+                        result = run_trial(
+                            client, "bench", robot, plan, goal, max_steps=args.max_steps
+                        )
+                        rows.append({"trial": trial, **result.row()})
+                        tqdm.write(
+                            f"{trial:3d} -> {goal:<12} {'ok' if result.success else result.state:9}"
+                            f" {result.distance_m:5.2f} m  {result.time_s:5.0f} s"
+                            f"  ratio {result.path_ratio:4.2f}  {result.reason or ''}"
+                        )
+        finally:
+            server.stop()
+    successes = [r for r in rows if r["success"]]
+    summary = {
+        "condition": args.condition,
+        "seed": args.seed,
+        "trials": len(rows),
+        "success_rate": len(successes) / len(rows) if rows else 0.0,
+        "wrong_arrivals": sum(r["wrong_arrival"] for r in rows),
+        "median_time_s": stats([r["time_s"] for r in successes])["p50"],
+        "median_path_ratio": stats([r["path_ratio"] for r in successes])["p50"],
+        "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
+        "path_ratio_definition": "driven metres / free-space shortest path (A* on the plan)",
+        "rows": rows,
+    }
+    print(
+        f"{args.condition}: {len(successes)}/{len(rows)} = {summary['success_rate']:.0%} success, "
+        f"{summary['wrong_arrivals']} wrong arrivals, median {summary['median_time_s']:.0f} s, "
+        f"median path ratio {summary['median_path_ratio']:.2f}"
+    )
+    write_json(args.json, summary)
+    return 0

@@ -1,0 +1,156 @@
+"""From a decided action to wheel velocities (001 Sections 7.1-7.3). Pure: NumPy only.
+
+* Navigate: visual homing. The horizontal displacement of features matched between the current
+  frame and the target image steers the robot; it moves forward at a constant speed. With no
+  matches it replays the motion recorded with the target image.
+* RotateAndFindEdge: spin in place.
+* Explore: head for open space (the longest range of the depth profile), or creep and turn
+  when there is no depth sensor.
+* DoNothing: stand still.
+* Obstacle avoidance is blended into every moving command with a weight that grows as the
+  nearest obstacle gets close, until it dominates.
+
+Conventions: ``v`` m/s forward positive, ``w`` rad/s counter-clockwise (left) positive; depth
+profiles are ``(n_rays,)`` ranges in metres from the leftmost ray to the rightmost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MotionParams:
+    """Motion settings; speeds in m/s and rad/s, distances in metres.
+
+    * ``cruise_v`` (0.25): forward speed along an edge when the taught speed is unknown.
+    * ``follow_taught_speed`` (True): drive at the speed recorded with the target image
+      (clipped to ``[min_v, max_v]``) so the belief advances as it did when taught.
+    * ``homing_gain`` (1.5): rad/s per unit of normalised horizontal offset (offset 1 = the
+      features are a whole image width away).
+    * ``max_w`` (1.0): largest turn rate.
+    * ``spin_w`` (0.5): turn rate of RotateAndFindEdge.
+    * ``explore_v`` (0.15), ``explore_gain`` (1.0 rad/s per rad): Explore speed and steering.
+    * ``avoid_start_m`` (0.55): obstacles nearer than this start to steer the robot away.
+    * ``avoid_full_m`` (0.25): at this range avoidance has full weight and forward motion stops.
+    * ``depth_fov_deg`` (90): field of view the depth rays span (evenly, left to right).
+    * ``ttl_s`` (0.6): how long a command stays valid without a newer one.
+    * ``found_similarity`` (0.5) and ``found_offset`` (0.06): RotateAndFindEdge has found its
+      edge when the frame's similarity to the edge's departure image is at least the former
+      and the homing offset to it at most the latter (about 5 degrees); the robot then drives
+      onto the edge.
+    * ``lost_similarity`` (0.25) and ``lost_steps`` (5): a robot driving onto an edge gives up
+      and spins again after this many frames whose best match on the edge is below the former.
+    """
+
+    cruise_v: float = 0.25
+    follow_taught_speed: bool = True
+    min_v: float = 0.1
+    max_v: float = 0.4
+    homing_gain: float = 1.5
+    max_w: float = 1.0
+    spin_w: float = 0.5
+    explore_v: float = 0.15
+    explore_gain: float = 1.0
+    avoid_start_m: float = 0.55
+    avoid_full_m: float = 0.25
+    depth_fov_deg: float = 90.0
+    ttl_s: float = 0.6
+    found_similarity: float = 0.5
+    found_offset: float = 0.06
+    lost_similarity: float = 0.25
+    lost_steps: int = 5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.avoid_full_m < self.avoid_start_m:
+            raise ValueError("need 0 < avoid_full_m < avoid_start_m")
+        if self.max_w <= 0 or self.spin_w <= 0 or self.ttl_s <= 0:
+            raise ValueError("max_w, spin_w and ttl_s must be positive")
+
+
+def ray_angles(n_rays: int, fov_deg: float) -> FloatArray:
+    """``(n_rays,)`` ray bearings in radians, left (positive) to right (negative)."""
+    half = math.radians(fov_deg) / 2
+    if n_rays == 1:
+        return np.zeros(1)
+    return np.linspace(half, -half, n_rays)
+
+
+def navigate_command(
+    offset: float | None, *, taught_v: float, taught_w: float, params: MotionParams
+) -> tuple[float, float]:
+    """Visual homing along an edge: the taught motion plus a correction.
+
+    The motion recorded with the current image (``taught_v``, ``taught_w``) is replayed as a
+    feedforward term, so taught turns are repeated; ``offset`` (normalised horizontal
+    displacement of the target image's features, target minus current: positive = they lie to
+    the right, see :func:`server.vision.homing.homing_offset`) adds ``homing_gain * offset``
+    to the turn rate. With no features matched (``offset`` None) the taught motion alone is
+    replayed (001 Section 7.2).
+    """
+    if params.follow_taught_speed:
+        # replay the taught motion (turns on the spot included) as the feedforward term
+        v = float(np.clip(taught_v, 0.0, params.max_v))
+        if 0 < v < params.min_v:
+            v = params.min_v
+    else:
+        v = params.cruise_v
+    w = taught_w
+    if offset is not None:
+        w = taught_w + params.homing_gain * offset
+    return v, float(np.clip(w, -params.max_w, params.max_w))
+
+
+def rotate_command(params: MotionParams, *, toward: float | None = None) -> tuple[float, float]:
+    """Spin in place: counter-clockwise, or toward the sought view when its homing offset
+    ``toward`` is known (slowing down as it comes into line)."""
+    if toward is None:
+        return 0.0, params.spin_w
+    w = params.homing_gain * toward
+    return 0.0, float(np.clip(w, -params.spin_w, params.spin_w))
+
+
+def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[float, float]:
+    """Head for the most open direction of the depth profile; without one, creep and turn."""
+    if depth is None or len(np.atleast_1d(depth)) == 0:
+        return params.explore_v, params.spin_w / 2
+    ranges = np.asarray(depth, dtype=np.float64)
+    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
+    # smooth so a single long ray through a gap does not win over a wide open side
+    k = max(1, len(ranges) // 8)
+    smooth = np.convolve(ranges, np.ones(k) / k, mode="same")
+    bearing = float(ray_angles(len(ranges), params.depth_fov_deg)[int(np.argmax(smooth))])
+    w = float(np.clip(params.explore_gain * bearing, -params.max_w, params.max_w))
+    if smooth.max() < params.avoid_start_m:  # boxed in: turn on the spot
+        return 0.0, params.spin_w
+    return params.explore_v, w
+
+
+def avoid_obstacles(
+    v: float, w: float, depth: npt.ArrayLike | None, params: MotionParams
+) -> tuple[float, float]:
+    """Blend obstacle avoidance into ``(v, w)`` with a weight that grows as obstacles close in.
+
+    Weight 0 beyond ``avoid_start_m``, 1 at ``avoid_full_m`` and nearer. The avoidance command
+    turns toward the more open side and does not move forward.
+    """
+    if depth is None or len(np.atleast_1d(depth)) == 0 or (v == 0.0 and w == 0.0):
+        return v, w
+    ranges = np.asarray(depth, dtype=np.float64)
+    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
+    nearest = float(ranges.min())
+    span = params.avoid_start_m - params.avoid_full_m
+    weight = float(np.clip((params.avoid_start_m - nearest) / span, 0.0, 1.0))
+    if weight == 0.0:
+        return v, w
+    angles = ray_angles(len(ranges), params.depth_fov_deg)
+    left = float(ranges[angles > 0].min()) if np.any(angles > 0) else nearest
+    right = float(ranges[angles < 0].min()) if np.any(angles < 0) else nearest
+    away = params.max_w if left >= right else -params.max_w
+    return (1.0 - weight) * v, (1.0 - weight) * w + weight * away

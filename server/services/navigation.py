@@ -1,0 +1,426 @@
+"""Navigation: "go to the kitchen", each frame answered with a motion command.
+
+Holds one :class:`TourRuntime` per tour (rebuilt when teaching changes the tour) and one
+:class:`RobotSession` per robot. The task and a belief snapshot are persisted, so a restarted
+server resumes a navigation where it was instead of starting from a uniform belief.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from server import schemas
+from server.belief.tracker import BeliefSummary
+from server.domain import TourGraph
+from server.errors import Conflict, DomainError, Invalid, NotFound
+from server.imaging import ImageLimits, decode_jpeg
+from server.session import Command, NavigationParams, RobotSession, Task, TourRuntime
+from server.storage.repo import NavigationRow, Repo
+from server.vision.features import ImageFeatures, extract
+from server.vision.index import learn_weights
+
+BELIEF_SNAPSHOT_S = 1.0
+"""Wall-clock seconds between two persisted belief snapshots of a navigating robot."""
+PREBUILD_DELAY_S = 1.0
+"""After teaching changes a tour, wait this long for more changes before preparing it."""
+
+
+class NavigationService:
+    def __init__(
+        self,
+        repo: Repo,
+        limits: ImageLimits,
+        params: NavigationParams | None = None,
+        *,
+        is_teaching: Callable[[str], bool] = lambda robot: False,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.repo = repo
+        self.limits = limits
+        self.params = params if params is not None else NavigationParams()
+        self.is_teaching = is_teaching
+        self.clock = clock
+        self._runtimes: dict[int, TourRuntime] = {}
+        self._stale: set[int] = set()
+        self._sessions: dict[str, RobotSession] = {}
+        self._tour_of: dict[str, int] = {}
+        self._snapshot_at: dict[str, float] = {}
+        self._lock = threading.RLock()
+        self._build_locks: dict[int, threading.Lock] = {}
+        self._due: dict[int, float] = {}
+        self._wake = threading.Event()
+        self._closed = False
+        self._worker: threading.Thread | None = None
+
+    def close(self) -> None:
+        """Stop the background builder."""
+        self._closed = True
+        self._wake.set()
+        if self._worker is not None:
+            self._worker.join(timeout=5)
+
+    # --- tours ----------------------------------------------------------------------------
+
+    def tour_changed(self, tour_id: int) -> None:
+        """Teaching changed ``tour_id``: its runtime is stale. A background thread prepares the
+        new one (features of the new images, weights) once the changes pause, so that a
+        ``goto`` right after teaching does not wait for it."""
+        with self._lock:
+            self._stale.add(tour_id)
+            self._due[tour_id] = time.monotonic() + PREBUILD_DELAY_S
+            if self._worker is None and not self._closed:
+                self._worker = threading.Thread(
+                    target=self._prebuild_forever, name="tour-prebuild", daemon=True
+                )
+                self._worker.start()
+        self._wake.set()
+
+    def _prebuild_forever(self) -> None:
+        while not self._closed:
+            with self._lock:
+                now = time.monotonic()
+                ready = [t for t, due in self._due.items() if due <= now]
+                for t in ready:
+                    del self._due[t]
+                wait = min((due - now for due in self._due.values()), default=None)
+            for tour_id in ready:
+                with contextlib.suppress(DomainError):  # e.g. a tour with no places yet
+                    self.runtime(tour_id)
+            self._wake.wait(timeout=wait)
+            self._wake.clear()
+
+    def runtime(self, tour_id: int) -> TourRuntime:
+        """The runtime of ``tour_id``, built (and its features extracted) on first use."""
+        with self._lock:
+            rt = self._runtimes.get(tour_id)
+            if rt is not None and tour_id not in self._stale:
+                return rt
+            build_lock = self._build_locks.setdefault(tour_id, threading.Lock())
+        with build_lock:
+            with self._lock:
+                rt = self._runtimes.get(tour_id)
+                if rt is not None and tour_id not in self._stale:
+                    return rt
+                self._stale.discard(tour_id)
+            rt = self._build(tour_id, version=0 if rt is None else rt.version + 1)
+            with self._lock:
+                self._runtimes[tour_id] = rt
+            return rt
+
+    def _build(self, tour_id: int, *, version: int) -> TourRuntime:
+        graph = self.repo.graph(tour_id)
+        if graph.n_locations == 0:
+            raise Conflict(f"tour {tour_id} has no places yet; teach it first")
+        rt = TourRuntime(graph, self._features(graph), self.params, version=version)
+        rt.index.set_weights(self._weights(tour_id, rt))
+        return rt
+
+    def _features(self, graph: TourGraph) -> list[ImageFeatures]:
+        """Features of every image of ``graph`` in canonical order: stored ones are reused,
+        missing ones (or ones extracted with other parameters) are extracted and stored."""
+        ids = [int(i) for i in graph.image_ids]
+        stored = self.repo.features(ids)
+        out: list[ImageFeatures] = []
+        fresh: list[tuple[int, bytes]] = []
+        fp = self.params.features
+        for image_id in ids:
+            blob = stored.get(image_id)
+            feats = None if blob is None else ImageFeatures.from_bytes(blob)
+            if feats is not None and (
+                feats.descriptor != fp.descriptor or feats.size != (fp.width, fp.height)
+            ):
+                feats = None
+            if feats is None:
+                image, _, _ = decode_jpeg(self.repo.image_jpeg(image_id), self.limits)
+                feats = extract(image, fp)
+                fresh.append((image_id, feats.to_bytes()))
+            out.append(feats)
+        if fresh:
+            self.repo.set_features(fresh)
+        return out
+
+    def _weights(self, tour_id: int, rt: TourRuntime) -> np.ndarray:
+        """The tour's signature weights: stored when learned on this very tour, else learned
+        now (the engine's documented defaults for tours too small to learn from) and stored."""
+        blob, n_images = self.repo.tour_weights(tour_id)
+        if blob is not None and n_images == rt.graph.n_images:
+            return np.frombuffer(blob, dtype=np.float32).astype(np.float64)
+        weights = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float64)
+        self.repo.set_tour_weights(tour_id, weights.astype(np.float32).tobytes(), rt.graph.n_images)
+        return weights
+
+    # --- sessions -------------------------------------------------------------------------
+
+    def session(self, robot: str) -> RobotSession | None:
+        """The robot's live session; after a restart, rebuilt from the persisted snapshot."""
+        with self._lock:
+            s = self._sessions.get(robot)
+        if s is not None:
+            tour_id = self._tour_of[robot]
+            rt = self.runtime(tour_id)
+            if rt is not s.runtime:
+                with s.lock:
+                    s.rebase(rt)
+            return s
+        row = self.repo.navigation(robot)
+        if row is None:
+            return None
+        return self._resume(row)
+
+    def _resume(self, row: NavigationRow) -> RobotSession:
+        rt = self.runtime(row.tour_id)
+        session = RobotSession(row.robot, rt)
+        if row.belief is not None and row.belief_images == rt.graph.n_images:
+            belief = np.frombuffer(row.belief, dtype=np.float32).astype(np.float64)
+            if belief.shape == (rt.model.n_fine,) and belief.sum() > 0:
+                session.tracker.set_belief(belief)
+        goal = _location_index(rt.graph, row.goal_location_id)
+        if goal is not None:
+            session.task = Task(
+                id=row.task_id,
+                goal=goal,
+                goal_name=rt.graph.locations[goal].name,
+                started_at=row.started_at,
+                state=row.state,
+                reason=row.reason,
+                ended_at=row.ended_at,
+                steps=row.steps,
+            )
+            if row.state == "underway":
+                session.last_frame_wall = self.clock()  # the silence clock restarts
+        with self._lock:
+            self._sessions[row.robot] = session
+            self._tour_of[row.robot] = row.tour_id
+        return session
+
+    def is_navigating(self, robot: str) -> bool:
+        s = self.session(robot)
+        return s is not None and s.task is not None and s.task.state == "underway"
+
+    def has_session(self, robot: str) -> bool:
+        return self.session(robot) is not None
+
+    def _persist(self, session: RobotSession, *, belief: bool) -> None:
+        task = session.task
+        if task is None:
+            return
+        rt = session.runtime
+        tour_id = self._tour_of[session.robot]
+        snapshot = session.tracker.belief.astype(np.float32).tobytes() if belief else None
+        self.repo.save_navigation(
+            NavigationRow(
+                robot=session.robot,
+                tour_id=tour_id,
+                task_id=task.id,
+                goal_location_id=rt.graph.locations[task.goal].id,
+                state=task.state,
+                reason=task.reason,
+                started_at=task.started_at,
+                ended_at=task.ended_at,
+                steps=task.steps,
+                belief=snapshot,
+                belief_images=rt.graph.n_images if belief else None,
+            )
+        )
+        if belief:
+            self._snapshot_at[session.robot] = self.clock()
+
+    # --- requests -------------------------------------------------------------------------
+
+    def goto(self, robot: str, body: schemas.GotoRequest) -> schemas.TaskPublic:
+        if self.is_teaching(robot):
+            raise Conflict(f"robot {robot!r} is teaching; finish or abort teaching first")
+        tour_id = body.tour if body.tour is not None else self._default_tour(robot)
+        self.repo.tour(tour_id)  # 404 when unknown
+        location_id = self.repo.location_by_name(tour_id, body.location)
+        if location_id is None:
+            names = [loc.name for loc in self.repo.locations(tour_id)]
+            raise NotFound(
+                f"tour {tour_id} has no place named {body.location!r}; its places are {names}"
+            )
+        rt = self.runtime(tour_id)
+        goal = _location_index(rt.graph, location_id)
+        if goal is None:  # pragma: no cover - the runtime was just built
+            raise NotFound(f"no place {body.location!r} in the tour")
+        session = self.session(robot)  # live, or resumed from the persisted snapshot
+        if session is None or self._tour_of.get(robot) != tour_id:
+            session = RobotSession(robot, rt)
+            with self._lock:
+                self._sessions[robot] = session
+                self._tour_of[robot] = tour_id
+        now = self.clock()
+        with session.lock:
+            if session.task is not None and session.task.state == "underway":
+                session.task.end("cancelled", f"replaced by a new goal: {body.location}", now)
+            session.task = Task(
+                id=self.repo.next_task_id(), goal=goal, goal_name=body.location, started_at=now
+            )
+            session.last_frame_wall = now
+            self._persist(session, belief=True)
+            return task_public(session.task, tour_id)
+
+    def _default_tour(self, robot: str) -> int:
+        if robot in self._tour_of:
+            return self._tour_of[robot]
+        row = self.repo.navigation(robot)
+        if row is not None:
+            return row.tour_id
+        tours = self.repo.tours()
+        if len(tours) == 1:
+            return tours[0][0].id
+        raise Invalid(
+            f"say which tour robot {robot!r} navigates in: pass 'tour' (GET /tours lists them)"
+        )
+
+    def stop(self, robot: str) -> schemas.TaskPublic:
+        session = self.session(robot)
+        task = None if session is None else session.task
+        if session is None or task is None or task.state != "underway":
+            raise Conflict(f"robot {robot!r} has no navigation underway; nothing to stop")
+        with session.lock:
+            task.end("cancelled", "stopped on request", self.clock())
+            self._persist(session, belief=True)
+            return task_public(task, self._tour_of[robot])
+
+    def frame(
+        self, robot: str, data: bytes, meta: schemas.FrameMeta
+    ) -> schemas.NavigationFrameResult:
+        session = self.session(robot)
+        if session is None:
+            raise Conflict(
+                f"robot {robot!r} is not teaching or navigating; start with "
+                f"POST /robots/{robot}/teach/start or POST /robots/{robot}/goto"
+            )
+        image, _, _ = decode_jpeg(data, self.limits)
+        with session.lock:
+            if session.last_timestamp is not None and meta.timestamp < session.last_timestamp:
+                raise Invalid(
+                    f"timestamp {meta.timestamp} goes backwards: the previous frame was at "
+                    f"{session.last_timestamp}. Send frames in capture order"
+                )
+            before = None if session.task is None else session.task.state
+            now = self.clock()
+            depth = None if meta.depth is None else np.asarray(meta.depth, dtype=np.float64)
+            record = session.step(
+                image,
+                timestamp=meta.timestamp,
+                v=meta.v,
+                w=meta.w,
+                depth=depth,
+                wall=now,
+                jpeg=data,
+            )
+            task = session.task
+            changed = task is not None and task.state != before
+            due = now - self._snapshot_at.get(robot, 0.0) >= BELIEF_SNAPSHOT_S
+            if task is not None and (changed or (task.state == "underway" and due)):
+                self._persist(session, belief=True)
+            votes = (
+                {}
+                if record.decision is None
+                else {str(k): float(v) for k, v in record.decision.votes.items()}
+            )
+            return schemas.NavigationFrameResult(
+                mode="navigating",
+                command=self._command_public(session, record.command),
+                task=None if task is None else task_public(task, self._tour_of[robot]),
+                belief=belief_public(record.summary, session.runtime.graph),
+                votes=votes,
+            )
+
+    def _command_public(self, session: RobotSession, command: Command) -> schemas.MotionCommand:
+        graph = session.runtime.graph
+        edge = command.action.edge
+        return schemas.MotionCommand(
+            v=command.v,
+            w=command.w,
+            ttl_s=self.params.motion.ttl_s,
+            action=command.action.kind.value,
+            edge=None if edge is None else graph.edges[edge].id,
+            target_image_id=None
+            if command.target_image is None
+            else int(graph.image_ids[command.target_image]),
+        )
+
+    def state(self, robot: str) -> schemas.NavigationState | None:
+        session = self.session(robot)
+        if session is None:
+            return None
+        with session.lock:
+            summary = session.tracker.last_summary
+            return schemas.NavigationState(
+                tour=self._tour_of[robot],
+                task=None
+                if session.task is None
+                else task_public(session.task, self._tour_of[robot]),
+                belief=belief_public(summary, session.runtime.graph),
+                last_command=None
+                if session.last_command is None
+                else self._command_public(session, session.last_command),
+            )
+
+    def sweep(self) -> int:
+        """Fail the tasks of robots that went silent; returns how many failed."""
+        now = self.clock()
+        with self._lock:
+            sessions = list(self._sessions.values())
+        failed = 0
+        for session in sessions:
+            with session.lock:
+                if session.check_silence(now):
+                    self._persist(session, belief=True)
+                    failed += 1
+        return failed
+
+    def sessions(self) -> dict[str, RobotSession]:
+        """A copy of the live sessions (for the dashboard)."""
+        with self._lock:
+            return dict(self._sessions)
+
+
+def _location_index(graph: TourGraph, location_id: int) -> int | None:
+    for k, loc in enumerate(graph.locations):
+        if loc.id == location_id:
+            return k
+    return None
+
+
+def task_public(task: Task, tour_id: int) -> schemas.TaskPublic:
+    return schemas.TaskPublic(
+        id=task.id,
+        tour=tour_id,
+        goal=task.goal_name,
+        state=task.state,  # type: ignore[arg-type]
+        reason=task.reason,
+        started_at=task.started_at,
+        ended_at=task.ended_at,
+        steps=task.steps,
+    )
+
+
+def state_public(graph: TourGraph, state: int, probability: float) -> schemas.StateProbability:
+    if state < graph.n_locations:
+        loc = graph.locations[state]
+        return schemas.StateProbability(
+            kind="location", id=loc.id, name=loc.name, probability=probability
+        )
+    edge = graph.edges[state - graph.n_locations]
+    return schemas.StateProbability(
+        kind="edge", id=edge.id, name=graph.state_name(state), probability=probability
+    )
+
+
+def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPublic:
+    top = [state_public(graph, s, p) for s, p in summary.top_states]
+    localised = None
+    if summary.localised and summary.localised_state is not None:
+        s = summary.localised_state
+        localised = state_public(graph, s, float(summary.state[s]))
+    return schemas.BeliefPublic(
+        top=top, entropy=summary.entropy, localised=summary.localised, localised_state=localised
+    )

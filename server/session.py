@@ -1,0 +1,379 @@
+"""One robot navigating one tour: the step function and the state that lives between frames.
+
+The step wires the core like a pipeline, each stage callable alone:
+
+    frame -> features -> similarities -> fine likelihood -> belief -> votes -> action -> command
+
+:class:`TourRuntime` holds what is derived from one snapshot of a tour (graph, engine index,
+belief model, costs per goal); :class:`RobotSession` holds one robot's tracker and task. Neither
+does I/O: the navigation service builds runtimes from storage and persists what must survive.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+import numpy.typing as npt
+
+from server.belief.model import Action, ActionKind, BeliefModel, TransitionParams, build_model
+from server.belief.tracker import BeliefSummary, Tracker, TrackerParams, fine_likelihood
+from server.domain import TourGraph
+from server.motion import (
+    MotionParams,
+    avoid_obstacles,
+    explore_command,
+    navigate_command,
+    rotate_command,
+)
+from server.policy.costs import CostParams, cost_to_goal
+from server.policy.voting import Decision, PolicyParams, decide
+from server.vision.features import FeatureParams, ImageFeatures, extract
+from server.vision.homing import homing_offset
+from server.vision.index import EngineParams, Similarity, TourIndex
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class NavigationParams:
+    """Everything that tunes navigation, with documented defaults.
+
+    * ``arrive_mass`` (0.6) and ``arrive_steps`` (3): the task is "arrived" once the goal
+      location holds at least this belief on this many consecutive frames.
+    * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
+    * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
+    * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
+      task failed and must re-localise.
+    * ``max_dt_s`` (1.0 s): a longer gap between frames is treated as this for prediction.
+    * ``history`` (200): steps kept per robot for the dashboard and debugging.
+    """
+
+    arrive_mass: float = 0.6
+    arrive_steps: int = 3
+    max_task_s: float = 300.0
+    lost_steps: int = 200
+    frame_timeout_s: float = 5.0
+    max_dt_s: float = 1.0
+    history: int = 200
+    features: FeatureParams = field(default_factory=FeatureParams)
+    engine: EngineParams = field(default_factory=EngineParams)
+    transitions: TransitionParams = field(default_factory=TransitionParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    policy: PolicyParams = field(default_factory=PolicyParams)
+    costs: CostParams = field(default_factory=CostParams)
+    motion: MotionParams = field(default_factory=MotionParams)
+
+
+class TourRuntime:
+    """What the core derives from one snapshot of a tour. Immutable once built; shared by every
+    robot navigating the tour."""
+
+    def __init__(
+        self,
+        graph: TourGraph,
+        features: Sequence[ImageFeatures],
+        params: NavigationParams,
+        *,
+        version: int = 0,
+    ) -> None:
+        if len(features) != graph.n_images:
+            raise ValueError(f"{len(features)} features for {graph.n_images} images")
+        self.graph = graph
+        self.params = params
+        self.version = version
+        self.features = tuple(features)
+        self.index = TourIndex(params.engine)
+        if graph.n_images:
+            self.index.add(self.features, graph.image_state)
+        self.model: BeliefModel = build_model(graph, params.transitions)
+        self._costs = lru_cache(maxsize=64)(self._cost_to_goal)
+        # canonical index of edge e's first image
+        self._edge_first = graph.n_images - int(graph.edge_offsets[-1]) + graph.edge_offsets
+        # index along each edge of the image where the taught robot started to move forward
+        self.departure = tuple(
+            int(np.argmax(e.v > 0.05)) if np.any(e.v > 0.05) else 0 for e in graph.edges
+        )
+        # for every edge image, the index of the first image at or after it that moves
+        self._moving = tuple(_next_moving(e.v, e.w) for e in graph.edges)
+
+    def moving_from(self, edge: int, k: int) -> int | None:
+        """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
+        when the robot stood still from ``k`` to the end)."""
+        nxt = int(self._moving[edge][k])
+        return None if nxt < 0 else nxt
+
+    def _cost_to_goal(self, goal: int) -> FloatArray:
+        return cost_to_goal(self.graph, goal, self.params.costs)
+
+    def costs(self, goal: int) -> FloatArray:
+        """``(n_locations,)`` seconds to reach location ``goal`` from every location."""
+        return self._costs(goal)
+
+    def edge_image(self, edge: int, k: int) -> int:
+        """Canonical image index of the ``k``-th image of ``edge``."""
+        n = self.graph.edges[edge].n_images
+        return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
+
+    def observe(self, features: ImageFeatures) -> tuple[Similarity, FloatArray]:
+        """Engine similarities of a frame and the ``(n_fine,)`` likelihood they give."""
+        sim = self.index.query(features, n_states=self.graph.n_states)
+        return sim, fine_likelihood(sim.image, self.graph)
+
+
+def _next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
+    """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
+    ``eps``, or -1 when none follows."""
+    n = len(v)
+    moving = (np.abs(v) > eps) | (np.abs(w) > eps)
+    idx = np.where(moving, np.arange(n), n)
+    nxt = np.minimum.accumulate(idx[::-1])[::-1]
+    return np.where(nxt < n, nxt, -1).astype(np.int64)
+
+
+@dataclass
+class Task:
+    """One "go to X" request and how it ended."""
+
+    id: int
+    goal: int  # location index in the runtime's graph
+    goal_name: str
+    started_at: float  # wall clock, s
+    started_robot_time: float | None = None
+    state: str = "underway"  # underway | arrived | failed | cancelled
+    reason: str | None = None
+    ended_at: float | None = None
+    steps: int = 0
+    explore_streak: int = 0
+    arrive_streak: int = 0
+
+    def end(self, state: str, reason: str | None, now: float) -> None:
+        if self.state == "underway":
+            self.state, self.reason, self.ended_at = state, reason, now
+
+
+@dataclass(frozen=True)
+class Command:
+    """A motion command before it goes on the wire."""
+
+    v: float
+    w: float
+    action: Action
+    target_image: int | None = None  # canonical image index (Navigate)
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What one step saw and decided (kept in a bounded history)."""
+
+    timestamp: float
+    jpeg: bytes  # the frame as the robot sent it
+    features: ImageFeatures
+    similarity: Similarity
+    summary: BeliefSummary
+    decision: Decision | None
+    command: Command
+    step_ms: float
+
+
+class RobotSession:
+    """One robot's live state on one tour: its tracker, its task, its last action."""
+
+    def __init__(self, robot: str, runtime: TourRuntime) -> None:
+        self.robot = robot
+        self.runtime = runtime
+        self.params = runtime.params
+        self.tracker = Tracker(runtime.model, runtime.params.tracker)
+        self.task: Task | None = None
+        self.last_action = Action.do_nothing()
+        self.last_timestamp: float | None = None
+        self.last_frame_wall: float | None = None
+        self.last_command: Command | None = None
+        self.history: deque[StepRecord] = deque(maxlen=runtime.params.history)
+        self.lock = threading.Lock()
+        # RotateAndFindEdge found its edge: (edge, image index along it, frames without a match)
+        self.leaving: tuple[int, int, int] | None = None
+
+    def rebase(self, runtime: TourRuntime) -> None:
+        """Move to a newer snapshot of the same tour (the belief restarts when states changed)."""
+        old = self.tracker.belief
+        self.runtime = runtime
+        self.tracker = Tracker(runtime.model, runtime.params.tracker)
+        self.leaving = None
+        if old.shape == (runtime.model.n_fine,):
+            self.tracker.set_belief(old)
+
+    def step(
+        self,
+        image: npt.NDArray[np.uint8],
+        *,
+        timestamp: float,
+        v: float,
+        w: float = 0.0,
+        depth: npt.ArrayLike | None = None,
+        wall: float = 0.0,
+        jpeg: bytes = b"",
+    ) -> StepRecord:
+        """Process one frame: features, similarities, belief, decision and the next command."""
+        started = time.perf_counter()
+        rt = self.runtime
+        p = self.params
+        dt = 0.0 if self.last_timestamp is None else timestamp - self.last_timestamp
+        dt = float(np.clip(dt, 0.0, p.max_dt_s))
+        features = extract(image, p.features)
+        similarity, likelihood = rt.observe(features)
+        summary = self.tracker.step(self.last_action, likelihood, v=v, w=w, dt=dt)
+        decision: Decision | None = None
+        task = self.task
+        if task is not None and task.state == "underway":
+            if task.started_robot_time is None:
+                task.started_robot_time = timestamp
+            decision = decide(rt.graph, summary.belief, task.goal, rt.costs(task.goal), p.policy)
+            command = self._command(decision, features, similarity, depth)
+            self._advance_task(task, summary, decision, timestamp, wall)
+            if task.state != "underway":
+                command = Command(0.0, 0.0, Action.do_nothing())
+        else:
+            command = Command(0.0, 0.0, Action.do_nothing())
+        self.last_action = command.action
+        self.last_timestamp = timestamp
+        self.last_frame_wall = wall
+        self.last_command = command
+        record = StepRecord(
+            timestamp=timestamp,
+            jpeg=jpeg,
+            features=features,
+            similarity=similarity,
+            summary=summary,
+            decision=decision,
+            command=command,
+            step_ms=(time.perf_counter() - started) * 1000.0,
+        )
+        self.history.append(record)
+        return record
+
+    def _command(
+        self,
+        decision: Decision,
+        features: ImageFeatures,
+        similarity: Similarity,
+        depth: npt.ArrayLike | None,
+    ) -> Command:
+        mp = self.params.motion
+        action = decision.action
+        target: int | None
+        if action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
+            self.leaving = None
+        if action.kind == ActionKind.NAVIGATE and decision.active_edge is not None:
+            edge = decision.active_edge
+            k = decision.target_image if decision.target_image is not None else 0
+            v, w, target = self._follow(edge, k, features)
+            action = Action.navigate(edge)
+        elif action.kind == ActionKind.ROTATE_AND_FIND_EDGE and action.edge is not None:
+            v, w, target, action = self._find_edge(action.edge, features, similarity)
+        elif action.kind == ActionKind.EXPLORE:
+            (v, w), target = explore_command(depth, mp), None
+        else:
+            v, w, target = 0.0, 0.0, None
+        v, w = avoid_obstacles(v, w, depth, mp)
+        return Command(v, w, action, target)
+
+    def _follow(self, edge: int, k: int, features: ImageFeatures) -> tuple[float, float, int]:
+        """Visual homing on image ``k`` of ``edge``: ``(v, w, canonical target index)``."""
+        rt = self.runtime
+        e = rt.graph.edges[edge]
+        k = int(np.clip(k, 0, e.n_images - 1))
+        target = rt.edge_image(edge, k)
+        # a pause while teaching is not repeated (standing still would freeze the belief);
+        # the motion replayed is that of the next image that moves. None left: the edge ends.
+        moving = rt.moving_from(edge, k)
+        if moving is None:
+            return 0.0, 0.0, target
+        homing = homing_offset(features, rt.features[target])
+        offset = None if homing is None else float(homing.offset)
+        v, w = navigate_command(
+            offset,
+            taught_v=float(e.v[moving]),
+            taught_w=float(e.w[moving]),
+            params=self.params.motion,
+        )
+        return v, w, target
+
+    def _find_edge(
+        self, edge: int, features: ImageFeatures, similarity: Similarity
+    ) -> tuple[float, float, int | None, Action]:
+        """RotateAndFindEdge: spin until the view lines up with the edge's departure image,
+        then drive onto the edge (reported as Navigate, so the belief follows onto it) and keep
+        going while the frames still match the edge."""
+        rt = self.runtime
+        mp = self.params.motion
+        e = rt.graph.edges[edge]
+        if self.leaving is not None and self.leaving[0] == edge:
+            _, k, misses = self.leaving
+            window = [rt.edge_image(edge, j) for j in range(k - 2, k + 8)]
+            best = int(np.argmax(similarity.image[window]))
+            if float(similarity.image[window[best]]) < mp.lost_similarity:
+                misses += 1
+            else:
+                k, misses = max(k, k - 2 + best), 0
+            if misses < mp.lost_steps and k < e.n_images - 1:
+                self.leaving = (edge, k, misses)
+                v, w, target = self._follow(edge, k + 1, features)
+                return v, w, target, Action.navigate(edge)
+        self.leaving = None
+        k = rt.departure[edge]
+        target = rt.edge_image(edge, k)
+        homing = homing_offset(features, rt.features[target])
+        near = [rt.edge_image(edge, j) for j in range(k - 1, k + 3)]
+        view = float(similarity.image[near].max())
+        if homing is not None and view >= mp.found_similarity:
+            if abs(homing.offset) <= mp.found_offset:
+                self.leaving = (edge, k, 0)
+                v, w, target = self._follow(edge, k + 1, features)
+                return v, w, target, Action.navigate(edge)
+            v, w = rotate_command(mp, toward=float(homing.offset))
+            return v, w, target, Action.rotate(edge)
+        v, w = rotate_command(mp)
+        return v, w, target, Action.rotate(edge)
+
+    def _advance_task(
+        self,
+        task: Task,
+        summary: BeliefSummary,
+        decision: Decision,
+        timestamp: float,
+        wall: float,
+    ) -> None:
+        p = self.params
+        task.steps += 1
+        goal_mass = float(summary.state[task.goal])
+        task.arrive_streak = task.arrive_streak + 1 if goal_mass >= p.arrive_mass else 0
+        explore = decision.action.kind == ActionKind.EXPLORE
+        task.explore_streak = task.explore_streak + 1 if explore else 0
+        if task.arrive_streak >= p.arrive_steps:
+            task.end("arrived", None, wall)
+        elif task.explore_streak >= p.lost_steps:
+            task.end(
+                "failed", f"lost: no confident position for {task.explore_streak} frames", wall
+            )
+        elif (
+            task.started_robot_time is not None
+            and timestamp - task.started_robot_time > p.max_task_s
+        ):
+            task.end("failed", f"timeout: still underway after {p.max_task_s:.0f} s", wall)
+
+    def check_silence(self, wall: float) -> bool:
+        """Fail an underway task whose robot has sent no frame for ``frame_timeout_s``."""
+        task = self.task
+        if task is None or task.state != "underway":
+            return False
+        last = self.last_frame_wall if self.last_frame_wall is not None else task.started_at
+        if wall - last > self.params.frame_timeout_s:
+            task.end("failed", f"timeout: no frame for {wall - last:.1f} s", wall)
+            return True
+        return False

@@ -1,0 +1,39 @@
+"""The image-similarity engine: the observation model of the belief tracker (001 section 5).
+
+Pure core: this package imports NumPy, OpenCV and the standard library only.
+
+Pipeline, one module per step:
+
+1. :mod:`server.vision.features` - normalise a frame to the working size, Harris corners with a
+   compact descriptor, and the global signature (YCbCr histogram, thumbnail, descriptor summary,
+   patch-normalised thumbnail). ``ImageFeatures.to_bytes`` is what storage persists.
+2. :mod:`server.vision.index` - the per-tour index (contiguous arrays, incremental ``add``), the
+   two-pass query (weighted signature distance to every image, then local features and an optional
+   RANSAC check on the candidates) and the learned signature weights.
+3. :mod:`server.vision.homing` - horizontal offset between the current frame and a target image,
+   for visual homing along an edge (001 section 7.2).
+"""
+
+from server.vision.features import FeatureParams, ImageFeatures, extract
+from server.vision.homing import HomingParams, HomingResult, homing_offset
+from server.vision.index import (
+    EngineParams,
+    Similarity,
+    TourIndex,
+    default_weights,
+    learn_weights,
+)
+
+__all__ = [
+    "EngineParams",
+    "FeatureParams",
+    "HomingParams",
+    "HomingResult",
+    "ImageFeatures",
+    "Similarity",
+    "TourIndex",
+    "default_weights",
+    "extract",
+    "homing_offset",
+    "learn_weights",
+]

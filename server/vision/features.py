@@ -1,0 +1,465 @@
+"""Per-image features: Harris corners with a compact descriptor, and the global signature.
+
+001 section 5.1 (features) and 5.2 (signatures). One call, :func:`extract`, turns a frame of any
+size into an :class:`ImageFeatures`; :meth:`ImageFeatures.to_bytes` is the blob storage persists
+per image so that a restart never re-extracts.
+
+Steps of :func:`extract`:
+
+1. **Normalise** the frame to the working size (default 320x240 px; INTER_AREA when shrinking,
+   INTER_LINEAR when enlarging). Every pixel coordinate in this module is at the working size.
+2. **Harris corners** (``cv2.goodFeaturesToTrack`` with the Harris response), strongest first,
+   at most ``n_features`` (50 by default, 100 as an option), away from the border.
+3. **Descriptor** at each corner, chosen by ``FeatureParams.descriptor``:
+
+   * ``"grad36"`` (default, the paper's 36 bytes of neighbouring-pixel gradients): a 3x3 grid of
+     cells around the corner, in each cell the summed positive and negative x and y gradients
+     (4 values), L2-normalised, clipped and quantised to ``uint8``. Compared by Euclidean distance.
+   * ``"orb"``: the 32-byte upright ORB/BRIEF binary descriptor at the same corners, compared by
+     Hamming distance.
+
+   The benchmark (``teachrepeat bench retrieval``, docs/retrieval.md) chose the default.
+4. **Global signature**: the concatenation of unit-L2-norm blocks (see :func:`signature_blocks`):
+
+   * ``hist``: YCbCr histogram, 64 bins per channel, square-rooted (Hellinger), stored as the
+     16 lowest orthonormal DCT coefficients per channel, 48 values: the Euclidean distance of
+     these is that of the low-pass filtered histograms, so a small brightness shift moves
+     mass to a neighbouring bin without changing the distance much, and the first pass reads
+     4x fewer bytes;
+   * ``thumb``: 8x6x3 colour thumbnail, mean removed (brightness invariant), 144 values;
+   * ``desc_mean``, ``desc_var``: mean and variance of the descriptors (36 + 36 values for grad36,
+     32 + 32 per-byte bit counts for ORB);
+   * ``patch``: a patch-normalised grey thumbnail (16x12; each pixel minus the mean over a local
+     window, divided by its standard deviation, as in SeqSLAM), 192 values. Beyond the paper:
+     it carries most of the weight on low-texture and low-resolution images.
+
+   Every block has unit norm (or is all zero when undefined, e.g. no corners), so the squared
+   Euclidean distance of a block lies in [0, 4].
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+DescriptorKind = Literal["grad36", "orb"]
+DESCRIPTOR_KINDS: tuple[DescriptorKind, ...] = ("grad36", "orb")
+DESCRIPTOR_BYTES: dict[str, int] = {"grad36": 36, "orb": 32}
+
+#: Names of the signature blocks, in the order they are concatenated.
+SIGNATURE_BLOCKS: tuple[str, ...] = ("hist", "thumb", "desc_mean", "desc_var", "patch")
+
+_MAGIC = b"TRVF"
+#: Version of the ``to_bytes`` layout; bump it when the layout changes.
+FORMAT_VERSION = 1
+_HEADER = struct.Struct("<4sHBBHHHHH")
+
+
+@dataclass(frozen=True)
+class FeatureParams:
+    """How an image is turned into features. All sizes in pixels at the working size.
+
+    Attributes:
+        width, height: working size every frame is resized to (px).
+        n_features: corners kept per image, strongest Harris response first (paper: 50; 100 is
+            the richer option).
+        descriptor: ``"grad36"`` (36-byte gradient descriptor) or ``"orb"`` (32-byte binary).
+        harris_k: Harris detector free parameter.
+        harris_block: neighbourhood size of the Harris structure tensor (px).
+        quality: minimum corner response relative to the strongest one in the image.
+        min_distance: minimum distance between two kept corners (px).
+        border: corners closer than this to the image border are dropped (px); must leave room
+            for the descriptor patch (grad36: 1.5 * cell + 2; ORB: 16).
+        cell: side of one of the 3x3 grad36 cells (px).
+        blur_sigma: Gaussian blur before the grad36 gradients (px).
+        clip: grad36 per-component clip after L2 normalisation (as in SIFT).
+        hist_bins: histogram bins per YCbCr channel.
+        hist_coefficients: DCT coefficients kept per channel (<= hist_bins).
+        thumb_size: (columns, rows) of the colour thumbnail.
+        patch_size: (columns, rows) of the patch-normalised grey thumbnail.
+        patch_window: side of the local normalisation window, in thumbnail pixels (odd).
+    """
+
+    width: int = 320
+    height: int = 240
+    n_features: int = 50
+    descriptor: DescriptorKind = "grad36"
+    harris_k: float = 0.04
+    harris_block: int = 3
+    quality: float = 1e-3
+    min_distance: float = 5.0
+    border: int = 16
+    cell: int = 6
+    blur_sigma: float = 1.0
+    clip: float = 0.3
+    hist_bins: int = 64
+    hist_coefficients: int = 16
+    thumb_size: tuple[int, int] = (8, 6)
+    patch_size: tuple[int, int] = (16, 12)
+    patch_window: int = 5
+
+    def __post_init__(self) -> None:
+        if self.descriptor not in DESCRIPTOR_KINDS:
+            raise ValueError(
+                f"unknown descriptor {self.descriptor!r}; choose one of {DESCRIPTOR_KINDS}"
+            )
+        if self.n_features < 1:
+            raise ValueError("n_features must be at least 1")
+        if self.width < 2 * self.border + 8 or self.height < 2 * self.border + 8:
+            raise ValueError(
+                f"working size {self.width}x{self.height} too small for border {self.border}"
+            )
+        if not 1 <= self.hist_coefficients <= self.hist_bins or self.hist_bins % 2:
+            raise ValueError("hist_bins must be even and 1 <= hist_coefficients <= hist_bins")
+        if self.patch_window % 2 == 0:
+            raise ValueError("patch_window must be odd")
+
+    @property
+    def descriptor_bytes(self) -> int:
+        """Bytes per descriptor (D)."""
+        return DESCRIPTOR_BYTES[self.descriptor]
+
+
+def signature_blocks(params: FeatureParams = FeatureParams()) -> tuple[tuple[str, int], ...]:
+    """``(name, length)`` of every signature block, in order (see the module docstring)."""
+    summary = 36 if params.descriptor == "grad36" else params.descriptor_bytes
+    tw, th = params.thumb_size
+    pw, ph = params.patch_size
+    return (
+        ("hist", 3 * params.hist_coefficients),
+        ("thumb", tw * th * 3),
+        ("desc_mean", summary),
+        ("desc_var", summary),
+        ("patch", pw * ph),
+    )
+
+
+def signature_length(params: FeatureParams = FeatureParams()) -> int:
+    """Total signature length S."""
+    return sum(n for _, n in signature_blocks(params))
+
+
+@dataclass(frozen=True, eq=False)
+class ImageFeatures:
+    """Everything the engine keeps about one image.
+
+    Attributes:
+        keypoints: ``(K, 2) float32`` corner (x, y) in pixels at the working size, strongest
+            first; ``K <= n_features`` (0 for a blank image).
+        descriptors: ``(K, D) uint8``, row k describes keypoint k (D = 36 grad36, 32 ORB).
+        signature: ``(S,) float32`` global signature, unit-norm blocks (:func:`signature_blocks`).
+        descriptor: which descriptor produced ``descriptors``.
+        size: working size ``(width, height)`` in pixels the keypoints refer to.
+    """
+
+    keypoints: npt.NDArray[np.float32]
+    descriptors: npt.NDArray[np.uint8]
+    signature: npt.NDArray[np.float32]
+    descriptor: DescriptorKind = "grad36"
+    size: tuple[int, int] = field(default=(320, 240))
+
+    def __post_init__(self) -> None:
+        k = len(self.keypoints)
+        if self.keypoints.shape != (k, 2) or self.descriptors.shape[0] != k:
+            raise ValueError(
+                f"keypoints {self.keypoints.shape} and descriptors {self.descriptors.shape} "
+                "must both have one row per corner"
+            )
+        if self.descriptors.dtype != np.uint8 or self.descriptors.ndim != 2:
+            raise ValueError("descriptors must be a (K, D) uint8 array")
+
+    @property
+    def n_keypoints(self) -> int:
+        return len(self.keypoints)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ImageFeatures):
+            return NotImplemented
+        return (
+            self.descriptor == other.descriptor
+            and tuple(self.size) == tuple(other.size)
+            and np.array_equal(self.keypoints, other.keypoints)
+            and np.array_equal(self.descriptors, other.descriptors)
+            and np.array_equal(self.signature, other.signature)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def to_bytes(self) -> bytes:
+        """Compact, versioned binary form (little endian): header, keypoints float32,
+        descriptors uint8, signature float32. About 2.3 kB with the defaults."""
+        kind = DESCRIPTOR_KINDS.index(self.descriptor)
+        d = self.descriptors.shape[1]
+        header = _HEADER.pack(
+            _MAGIC,
+            FORMAT_VERSION,
+            kind,
+            0,
+            self.n_keypoints,
+            d,
+            len(self.signature),
+            int(self.size[0]),
+            int(self.size[1]),
+        )
+        return b"".join(
+            (
+                header,
+                np.ascontiguousarray(self.keypoints, dtype="<f4").tobytes(),
+                np.ascontiguousarray(self.descriptors, dtype=np.uint8).tobytes(),
+                np.ascontiguousarray(self.signature, dtype="<f4").tobytes(),
+            )
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> ImageFeatures:
+        """Inverse of :meth:`to_bytes`; ``ValueError`` on a blob of another format or version."""
+        if len(data) < _HEADER.size:
+            raise ValueError(f"feature blob too short ({len(data)} bytes); re-extract the image")
+        magic, version, kind, _, k, d, s, w, h = _HEADER.unpack_from(data, 0)
+        if magic != _MAGIC:
+            raise ValueError("not an ImageFeatures blob (bad magic); re-extract the image")
+        if version != FORMAT_VERSION:
+            raise ValueError(
+                f"feature blob version {version}, this code reads {FORMAT_VERSION}; "
+                "re-extract the tour's images"
+            )
+        expected = _HEADER.size + 8 * k + k * d + 4 * s
+        if len(data) != expected or kind >= len(DESCRIPTOR_KINDS):
+            raise ValueError(f"corrupt feature blob: {len(data)} bytes, expected {expected}")
+        off = _HEADER.size
+        kp = np.frombuffer(data, dtype="<f4", count=2 * k, offset=off).reshape(k, 2)
+        off += 8 * k
+        desc = np.frombuffer(data, dtype=np.uint8, count=k * d, offset=off).reshape(k, d)
+        off += k * d
+        sig = np.frombuffer(data, dtype="<f4", count=s, offset=off)
+        return cls(
+            keypoints=kp.astype(np.float32),
+            descriptors=desc.copy(),
+            signature=sig.astype(np.float32),
+            descriptor=DESCRIPTOR_KINDS[kind],
+            size=(int(w), int(h)),
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# extraction
+
+
+def normalise(
+    image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """Resize to the working size: ``(colour (H, W, 3) BGR uint8, grey (H, W) uint8)``."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 image, got {img.dtype}; convert it first")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 2 or img.shape[1] < 2:
+        raise ValueError(f"expected an (H, W, 3) BGR or (H, W) grey image, got {img.shape}")
+    size = (params.width, params.height)
+    if img.shape[1] != params.width or img.shape[0] != params.height:
+        shrink = img.shape[1] >= params.width and img.shape[0] >= params.height
+        interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
+        img = cv2.resize(img, size, interpolation=interp)
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return np.ascontiguousarray(img), grey
+
+
+def _border_mask(params: FeatureParams, border: int) -> npt.NDArray[np.uint8]:
+    mask = np.zeros((params.height, params.width), np.uint8)
+    mask[border : params.height - border, border : params.width - border] = 255
+    return mask
+
+
+def detect_corners(
+    grey: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+) -> npt.NDArray[np.float32]:
+    """Harris corners of a working-size grey image, strongest first: ``(K, 2) float32`` (x, y)."""
+    border = params.border if params.descriptor == "grad36" else max(params.border, 16)
+    corners = cv2.goodFeaturesToTrack(
+        grey,
+        maxCorners=params.n_features,
+        qualityLevel=params.quality,
+        minDistance=params.min_distance,
+        mask=_border_mask(params, border),
+        blockSize=params.harris_block,
+        useHarrisDetector=True,
+        k=params.harris_k,
+    )
+    if corners is None:
+        return np.zeros((0, 2), np.float32)
+    return np.ascontiguousarray(corners.reshape(-1, 2), dtype=np.float32)
+
+
+def grad36_descriptors(
+    grey: npt.NDArray[np.uint8],
+    keypoints: npt.NDArray[np.float32],
+    params: FeatureParams = FeatureParams(),
+) -> npt.NDArray[np.uint8]:
+    """The 36-byte gradient descriptor at each keypoint: ``(K, 36) uint8``.
+
+    3x3 cells of ``params.cell`` px around the corner; in each cell the sums of the positive and
+    negative x and y gradients; L2-normalised, clipped at ``params.clip``, scaled so the clip
+    maps to 255.
+    """
+    k = len(keypoints)
+    if k == 0:
+        return np.zeros((0, 36), np.uint8)
+    g = grey.astype(np.float32)
+    if params.blur_sigma > 0:
+        g = cv2.GaussianBlur(g, (0, 0), params.blur_sigma)
+    dx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=1)
+    dy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1)
+    maps = np.stack([np.maximum(dx, 0), np.maximum(-dx, 0), np.maximum(dy, 0), np.maximum(-dy, 0)])
+    c = params.cell
+    cells = np.stack(
+        [
+            cv2.boxFilter(m, -1, (c, c), normalize=False, borderType=cv2.BORDER_REFLECT)
+            for m in maps
+        ],
+        axis=-1,
+    )  # (H, W, 4): gradient sums over the c x c cell centred at each pixel
+    h, w = grey.shape
+    offs = np.array([-c, 0, c], np.int64)
+    xs = np.rint(keypoints[:, 0]).astype(np.int64)
+    ys = np.rint(keypoints[:, 1]).astype(np.int64)
+    sx = np.clip(xs[:, None, None] + offs[None, None, :], 0, w - 1)  # (K, 1, 3)
+    sy = np.clip(ys[:, None, None] + offs[None, :, None], 0, h - 1)  # (K, 3, 1)
+    desc = cells[sy, sx].reshape(k, 36)  # (K, 3, 3, 4) -> (K, 36)
+    norm = np.linalg.norm(desc, axis=1, keepdims=True)
+    desc = desc / np.maximum(norm, 1e-6)
+    desc = np.minimum(desc, params.clip)
+    norm = np.linalg.norm(desc, axis=1, keepdims=True)
+    desc = desc / np.maximum(norm, 1e-6)
+    return np.clip(np.rint(desc * (255.0 / params.clip)), 0, 255).astype(np.uint8)
+
+
+_ORB = None
+
+
+def orb_descriptors(
+    grey: npt.NDArray[np.uint8], keypoints: npt.NDArray[np.float32]
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """Upright ORB (rBRIEF pattern, no orientation) at the given corners.
+
+    Returns the corners ORB kept (it drops those too close to the border) and ``(K, 32) uint8``.
+    """
+    global _ORB
+    if len(keypoints) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
+    if _ORB is None:
+        _ORB = cv2.ORB_create(edgeThreshold=16, patchSize=31)
+    kps = [cv2.KeyPoint(float(x), float(y), 31.0) for x, y in keypoints]
+    kept, desc = _ORB.compute(grey, kps)
+    if desc is None or len(kept) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
+    pts = np.array([kp.pt for kp in kept], np.float32).reshape(-1, 2)
+    return pts, np.ascontiguousarray(desc, dtype=np.uint8)
+
+
+def _unit(v: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
+    v = np.asarray(v, np.float32).ravel()
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-9 else np.zeros_like(v)
+
+
+def _descriptor_values(desc: npt.NDArray[np.uint8], kind: str) -> npt.NDArray[np.float32]:
+    if kind == "orb":
+        return np.bitwise_count(desc).astype(np.float32)  # per-byte bit counts, 0..8
+    return desc.astype(np.float32)
+
+
+def compute_signature(
+    colour: npt.NDArray[np.uint8],
+    grey: npt.NDArray[np.uint8],
+    descriptors: npt.NDArray[np.uint8],
+    params: FeatureParams = FeatureParams(),
+) -> npt.NDArray[np.float32]:
+    """The global signature of a working-size image: ``(S,) float32``, unit-norm blocks."""
+    ycrcb = cv2.cvtColor(colour, cv2.COLOR_BGR2YCrCb)
+    hists = []
+    for ch in (0, 2, 1):  # Y, Cb, Cr
+        hst = cv2.calcHist([ycrcb], [ch], None, [params.hist_bins], [0, 256]).ravel()
+        root = np.sqrt(hst / max(float(hst.sum()), 1.0)).astype(np.float32)
+        hists.append(cv2.dct(root.reshape(-1, 1)).ravel()[: params.hist_coefficients])
+    hist = _unit(np.concatenate(hists))
+
+    thumb = cv2.resize(colour, params.thumb_size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    thumb = _unit(thumb - thumb.mean())
+
+    summary = 36 if params.descriptor == "grad36" else params.descriptor_bytes
+    if len(descriptors):
+        vals = _descriptor_values(descriptors, params.descriptor)
+        d_mean = _unit(vals.mean(axis=0))
+        d_var = _unit(vals.var(axis=0))
+    else:
+        d_mean = d_var = np.zeros(summary, np.float32)
+
+    small = cv2.resize(grey, params.patch_size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    win = (params.patch_window, params.patch_window)
+    mean = cv2.blur(small, win, borderType=cv2.BORDER_REFLECT)
+    sq = cv2.blur(small * small, win, borderType=cv2.BORDER_REFLECT)
+    std = np.sqrt(np.maximum(sq - mean * mean, 0.0))
+    patch = _unit((small - mean) / (std + 2.0))
+
+    return np.concatenate([hist, thumb, d_mean, d_var, patch]).astype(np.float32)
+
+
+def extract(image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()) -> ImageFeatures:
+    """Features of one frame.
+
+    Args:
+        image: ``(H, W, 3) uint8`` BGR or ``(H, W) uint8`` grey, any size (resized to the working
+            size ``params.width x params.height``).
+        params: extraction parameters.
+
+    Returns:
+        :class:`ImageFeatures` with at most ``params.n_features`` corners, strongest first.
+    """
+    colour, grey = normalise(image, params)
+    corners = detect_corners(grey, params)
+    if params.descriptor == "grad36":
+        desc = grad36_descriptors(grey, corners, params)
+    else:
+        corners, desc = orb_descriptors(grey, corners)
+    signature = compute_signature(colour, grey, desc, params)
+    return ImageFeatures(
+        keypoints=corners,
+        descriptors=desc,
+        signature=signature,
+        descriptor=params.descriptor,
+        size=(params.width, params.height),
+    )
+
+
+def descriptor_distances(
+    a: npt.NDArray[np.uint8],
+    b: npt.NDArray[np.uint8],
+    kind: DescriptorKind = "grad36",
+    params: FeatureParams = FeatureParams(),
+) -> npt.NDArray[np.float32]:
+    """Pairwise descriptor distances ``(Ka, Kb) float32``, normalised to about [0, 1].
+
+    grad36: Euclidean distance divided by the nominal descriptor norm (``255 / clip``);
+    ORB: Hamming distance divided by the number of bits.
+    """
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)), np.float32)
+    if kind == "grad36":
+        scale = 255.0 / params.clip
+        af = a.astype(np.float32) / scale
+        bf = b.astype(np.float32) / scale
+        sq = (af * af).sum(1)[:, None] + (bf * bf).sum(1)[None, :] - 2.0 * (af @ bf.T)
+        return np.sqrt(np.maximum(sq, 0.0)).astype(np.float32)
+    bits = 8 * a.shape[1]
+    xor = a[:, None, :] ^ b[None, :, :]
+    return (np.bitwise_count(xor).sum(axis=2) / bits).astype(np.float32)

@@ -1,0 +1,690 @@
+"""The per-tour index and the two-pass similarity query (001 section 5.2-5.3, DESIGN section 3).
+
+A :class:`TourIndex` holds every stored image of one tour in contiguous arrays that grow by
+doubling (``add`` is amortised O(new images)). :meth:`TourIndex.query` turns the features of a
+camera frame into a :class:`Similarity`: one value per stored image and per upper state, the
+observation model of the belief tracker.
+
+Query, step by step:
+
+1. **First pass** - weighted signature distance to every stored image in one matrix-vector
+   product: ``d(q, i) = sum_t w_t ||q_t - x_{i,t}||^2`` over the signature blocks t (each block
+   has unit norm, so ``d_t`` lies in [0, 4]; the weights sum to 1).
+2. **Candidates** - the ``n_candidates`` images with the smallest ``d`` plus the best image of
+   every state (001: "we add the best match from every state").
+3. **Second pass** - for each query corner, its nearest corner in each candidate (one batched
+   matrix product for all candidates); the mean nearest distance is ``e_features`` (descriptor
+   units normalised to about [0, 1]). ``e = feature_weight * e_features + signature_weight * d``.
+4. **Geometric check** (beyond 001, seeds 003/004, optional) - RANSAC homography between the
+   frame and the ``geometric_top`` best candidates on mutual nearest-neighbour matches;
+   ``e += geometric_weight * (1 - inlier fraction)``; candidates not verified count as 0 inliers.
+5. **Normalisation** - eq. (4) over the candidates: ``sim = 1 - (e - e_min) / (e_max - e_min)``;
+   an image outside the candidates gets half the smallest candidate similarity of its state; a
+   floor keeps every similarity > 0. Per state: the max over its images (eq. 2).
+
+Learned weights (:func:`learn_weights`): per tour, projected gradient descent on a soft triplet
+loss so that images of the same state are near and images of different states far.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from server.vision.features import (
+    FeatureParams,
+    ImageFeatures,
+    signature_blocks,
+    signature_length,
+)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+#: Default signature weights (hist, thumb, desc_mean, desc_var, patch), sum 1; used when a
+#: tour is too small to learn from. Chosen on the benchmark (docs/retrieval.md).
+DEFAULT_WEIGHTS: tuple[float, ...] = (0.35, 0.1, 0.1, 0.05, 0.4)
+
+
+@dataclass(frozen=True)
+class EngineParams:
+    """Parameters of the two-pass engine.
+
+    Attributes:
+        features: how images are extracted (must match the features added to the index).
+        n_candidates: N, images kept by the first pass besides the best image of every state.
+        weights: signature block weights (hist, thumb, desc_mean, desc_var, patch), >= 0;
+            normalised to sum 1. ``None`` means :data:`DEFAULT_WEIGHTS`.
+        feature_weight: weight of ``e_features`` (mean nearest-corner distance, ~[0, 1]).
+        signature_weight: weight of the first-pass signature distance (~[0, 4]) in ``e``.
+        symmetric: ``e_features`` also averages each candidate corner's nearest query corner
+            (beyond 001; same distance matrix, measured to help on the corridor data).
+        geometric: run the RANSAC homography check on the best candidates.
+        geometric_top: how many of the best candidates the check verifies.
+        geometric_weight: weight of ``1 - inlier fraction`` in ``e``.
+        ransac_threshold: RANSAC reprojection threshold (px at the working size).
+        min_matches: fewer mutual matches than this count as 0 inliers.
+        floor: smallest similarity any image or state gets, so no likelihood is zero.
+        outside_factor: similarity of a non-candidate image as a fraction of the smallest
+            candidate similarity of its state (001: 1/2).
+    """
+
+    features: FeatureParams = field(default_factory=FeatureParams)
+    n_candidates: int = 20
+    weights: tuple[float, ...] | None = None
+    feature_weight: float = 1.0
+    signature_weight: float = 0.3
+    symmetric: bool = True
+    geometric: bool = False
+    geometric_top: int = 5
+    geometric_weight: float = 0.3
+    ransac_threshold: float = 8.0
+    min_matches: int = 6
+    floor: float = 1e-3
+    outside_factor: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.n_candidates < 1:
+            raise ValueError("n_candidates must be at least 1")
+        if not 0.0 < self.floor < 1.0:
+            raise ValueError("floor must lie in (0, 1)")
+        if self.weights is not None and len(self.weights) != len(signature_blocks(self.features)):
+            raise ValueError(
+                f"weights needs one value per signature block "
+                f"{[n for n, _ in signature_blocks(self.features)]}"
+            )
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """Result of one query.
+
+    Attributes:
+        image: ``(n_images,) float64`` in (0, 1], per stored image in insertion order.
+        state: ``(n_states,) float64`` in (0, 1], eq. (2): max over the state's images
+            (``floor`` for a state without images).
+        best_image: ``(n_states,) int64`` index of the best image of each state, -1 if none.
+        candidates: ``(C,) int64`` image indices that went through the second pass, best first.
+        first_pass_ms, second_pass_ms: wall time of the two passes (ms).
+    """
+
+    image: FloatArray
+    state: FloatArray
+    best_image: IntArray
+    candidates: IntArray
+    first_pass_ms: float
+    second_pass_ms: float
+
+    @property
+    def total_ms(self) -> float:
+        return self.first_pass_ms + self.second_pass_ms
+
+
+def default_weights(params: FeatureParams = FeatureParams()) -> FloatArray:
+    """The documented default signature weights, ``(T,) float64`` summing to 1."""
+    w = np.asarray(DEFAULT_WEIGHTS, np.float64)
+    if len(w) != len(signature_blocks(params)):
+        w = np.full(len(signature_blocks(params)), 1.0 / len(signature_blocks(params)))
+    return w / w.sum()
+
+
+def _normalise_weights(w: npt.ArrayLike, n_blocks: int) -> FloatArray:
+    arr = np.asarray(w, np.float64).ravel()
+    if arr.shape != (n_blocks,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"weights must be {n_blocks} finite non-negative numbers, got {arr}")
+    if arr.sum() <= 0:
+        raise ValueError("weights must not all be zero")
+    return arr / arr.sum()
+
+
+def _block_bounds(params: FeatureParams) -> IntArray:
+    sizes = [n for _, n in signature_blocks(params)]
+    return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+
+
+def block_distances(
+    query: npt.NDArray[np.floating], signatures: npt.NDArray[np.floating], bounds: IntArray
+) -> npt.NDArray[np.float64]:
+    """Squared Euclidean distance per signature block: ``(n, T)`` for a ``(S,)`` query against
+    ``(n, S)`` signatures (a plain reference implementation, used by learning and tests)."""
+    diff = signatures.astype(np.float64) - query.astype(np.float64)[None, :]
+    sq = diff * diff
+    return np.stack(
+        [sq[:, a:b].sum(axis=1) for a, b in zip(bounds[:-1], bounds[1:], strict=True)], 1
+    )
+
+
+class TourIndex:
+    """All stored images of one tour, ready for :meth:`query`.
+
+    Images are appended with :meth:`add` in the order the caller chooses (storage uses the
+    canonical image order of :class:`server.domain.TourGraph`); indices in every result refer to
+    that insertion order.
+    """
+
+    def __init__(self, params: EngineParams = EngineParams()) -> None:
+        self.params = params
+        fp = params.features
+        self._bounds = _block_bounds(fp)
+        self._n_blocks = len(self._bounds) - 1
+        self._s = signature_length(fp)
+        self._k = fp.n_features
+        self._d = fp.descriptor_bytes
+        self._n = 0
+        self._cap = 0
+        # first-pass matrices, one contiguous (cap, S_t) float32 array per signature block, so
+        # that blocks with weight 0 cost nothing
+        self._blocks = [np.zeros((0, int(b - a)), np.float32) for a, b in self._block_pairs()]
+        self._sqn = np.zeros((0, self._n_blocks), np.float32)  # per-block squared norms
+        self._kp = np.zeros((0, self._k, 2), np.float16)
+        self._desc = np.zeros((0, self._k, self._d), np.uint8)
+        self._nkp = np.zeros(0, np.int16)
+        self._state = np.zeros(0, np.int64)
+        self._order: IntArray | None = None  # images sorted by state (lazy)
+        self._seg_starts = np.zeros(0, np.int64)
+        self._seg_states = np.zeros(0, np.int64)
+        self._weights = (
+            default_weights(fp)
+            if params.weights is None
+            else _normalise_weights(params.weights, self._n_blocks)
+        )
+
+    # ------------------------------------------------------------------ storage
+
+    @property
+    def n_images(self) -> int:
+        return self._n
+
+    @property
+    def states(self) -> IntArray:
+        """``(n_images,) int64`` upper state of every stored image (a copy)."""
+        return self._state[: self._n].copy()
+
+    @property
+    def signatures(self) -> npt.NDArray[np.float32]:
+        """``(n_images, S) float32`` stored signatures (a copy)."""
+        return np.concatenate([blk[: self._n] for blk in self._blocks], axis=1)
+
+    @property
+    def bytes_per_image(self) -> float:
+        """Memory per stored image in bytes (arrays at their used size; growth slack, at most
+        2x, excluded): signature float32, block norms, keypoints float16, descriptors, counts,
+        state."""
+        return float(
+            4 * self._s
+            + self._sqn.itemsize * self._n_blocks
+            + 2 * 2 * self._k
+            + self._k * self._d
+            + 2
+            + 8
+        )
+
+    def features(self, i: int) -> ImageFeatures:
+        """The stored features of image ``i`` (keypoints rounded to float16 precision)."""
+        if not 0 <= i < self._n:
+            raise IndexError(f"image {i} not in index of {self._n} images")
+        k = int(self._nkp[i])
+        return ImageFeatures(
+            keypoints=self._kp[i, :k].astype(np.float32),
+            descriptors=self._desc[i, :k].copy(),
+            signature=np.concatenate([blk[i] for blk in self._blocks]),
+            descriptor=self.params.features.descriptor,
+            size=(self.params.features.width, self.params.features.height),
+        )
+
+    def _grow(self, need: int) -> None:
+        if need <= self._cap:
+            return
+        cap = max(need, 2 * self._cap, 64)
+
+        def grown(a: np.ndarray) -> np.ndarray:
+            out = np.zeros((cap, *a.shape[1:]), a.dtype)
+            out[: self._n] = a[: self._n]
+            return out
+
+        self._blocks = [grown(blk) for blk in self._blocks]
+        self._sqn = grown(self._sqn)
+        self._kp = grown(self._kp)
+        self._desc = grown(self._desc)
+        self._nkp = grown(self._nkp)
+        self._state = grown(self._state)
+        self._cap = cap
+
+    def add(self, features: Sequence[ImageFeatures], states: npt.ArrayLike) -> None:
+        """Append images.
+
+        Args:
+            features: one :class:`ImageFeatures` per image, extracted with
+                ``params.features``.
+            states: ``(len(features),)`` int, the upper state of each image (>= 0).
+        """
+        st = np.asarray(states, np.int64).ravel()
+        if len(st) != len(features):
+            raise ValueError(f"{len(features)} images but {len(st)} states; give one per image")
+        if len(st) and st.min() < 0:
+            raise ValueError("states must be >= 0")
+        fp = self.params.features
+        for f in features:
+            if f.descriptor != fp.descriptor or len(f.signature) != self._s:
+                raise ValueError(
+                    f"features ({f.descriptor}, signature {len(f.signature)}) do not match the "
+                    f"index ({fp.descriptor}, signature {self._s}); re-extract with the "
+                    "index's FeatureParams"
+                )
+        m = len(st)
+        if m == 0:
+            return
+        self._grow(self._n + m)
+        lo, hi = self._n, self._n + m
+        sig = np.stack([f.signature for f in features]).astype(np.float32)
+        for blk, (a, b) in zip(self._blocks, self._block_pairs(), strict=True):
+            blk[lo:hi] = sig[:, a:b]
+        self._sqn[lo:hi] = self._block_sqnorms(sig)
+        for j, f in enumerate(features):
+            k = min(f.n_keypoints, self._k)
+            self._kp[lo + j, :k] = f.keypoints[:k]
+            self._kp[lo + j, k:] = 0
+            self._desc[lo + j, :k] = f.descriptors[:k]
+            self._desc[lo + j, k:] = 0
+            self._nkp[lo + j] = k
+        self._state[lo:hi] = st
+        self._n = hi
+        self._order = None
+
+    def _block_sqnorms(self, sig: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        sq = sig.astype(np.float32) ** 2
+        return np.add.reduceat(sq, self._bounds[:-1], axis=1).astype(np.float32)
+
+    # ------------------------------------------------------------------ weights
+
+    @property
+    def weights(self) -> FloatArray:
+        """``(T,) float64`` signature block weights in use (sum 1)."""
+        return self._weights.copy()
+
+    def set_weights(self, w: npt.ArrayLike) -> None:
+        """Use new signature weights (e.g. from :func:`learn_weights`); normalised to sum 1."""
+        self._weights = _normalise_weights(w, self._n_blocks)
+
+    # ------------------------------------------------------------------ query
+
+    def _segments(self) -> None:
+        """Images grouped by state: a stable order and the segment starts (cached)."""
+        st = self._state[: self._n]
+        if self._n and np.all(st[1:] >= st[:-1]):
+            order = np.arange(self._n, dtype=np.int64)
+        else:
+            order = np.argsort(st, kind="stable").astype(np.int64)
+        sorted_states = st[order]
+        starts = np.flatnonzero(np.r_[True, sorted_states[1:] != sorted_states[:-1]])
+        self._order = order
+        self._seg_starts = starts.astype(np.int64)
+        self._seg_states = sorted_states[starts]
+
+    def signature_distances(self, query: ImageFeatures) -> npt.NDArray[np.float32]:
+        """First pass: ``(n_images,) float32`` weighted signature distance to every image,
+        ``sum_t w_t ||q_t - x_t||^2``, in one matrix-vector product."""
+        q = np.asarray(query.signature, np.float32)
+        if q.shape != (self._s,):
+            raise ValueError(
+                f"query signature has {q.shape} values, the index expects ({self._s},); "
+                "extract the frame with the index's FeatureParams"
+            )
+        n = self._n
+        qsq = self._block_sqnorms(q[None, :])[0]
+        w32 = self._weights.astype(np.float32)
+        d = self._sqn[:n] @ w32
+        d += float(qsq @ w32)
+        for t, (blk, (a, b)) in enumerate(zip(self._blocks, self._block_pairs(), strict=True)):
+            if w32[t] > 0:
+                d -= blk[:n] @ ((2.0 * w32[t]) * q[a:b])
+        np.maximum(d, 0.0, out=d)
+        return d
+
+    def _block_pairs(self) -> list[tuple[int, int]]:
+        return [(int(a), int(b)) for a, b in zip(self._bounds[:-1], self._bounds[1:], strict=True)]
+
+    def set_block_signatures(self, sig: npt.NDArray[np.float32]) -> None:
+        """Overwrite the stored signatures of all images: ``(n_images, S) float32`` (used by
+        the benchmark to jitter tiled synthetic tours)."""
+        sig = np.asarray(sig, np.float32)
+        if sig.shape != (self._n, self._s):
+            raise ValueError(f"expected ({self._n}, {self._s}) signatures, got {sig.shape}")
+        for blk, (a, b) in zip(self._blocks, self._block_pairs(), strict=True):
+            blk[: self._n] = sig[:, a:b]
+        self._sqn[: self._n] = self._block_sqnorms(sig)
+
+    def _best_per_state(self, d: npt.NDArray[np.float32]) -> tuple[IntArray, IntArray]:
+        """``(states present, best image of each)`` by first-pass distance."""
+        if self._order is None:
+            self._segments()
+        assert self._order is not None
+        order = self._order
+        identity = len(order) == 0 or (order[0] == 0 and order[-1] == len(order) - 1)
+        ds = d if identity else d[order]
+        mins = np.minimum.reduceat(ds, self._seg_starts)
+        counts = np.diff(np.r_[self._seg_starts, len(ds)])
+        hits = np.flatnonzero(ds <= np.repeat(mins, counts))
+        first = hits[np.searchsorted(hits, self._seg_starts)]
+        best = first if identity else order[first]
+        return self._seg_states, best.astype(np.int64)
+
+    def feature_errors(self, query: ImageFeatures, candidates: IntArray) -> FloatArray:
+        """Second pass: ``(C,) float64`` mean distance from each query corner to its nearest
+        corner in each candidate, normalised to about [0, 1] (1 when either side has none)."""
+        dist, valid = self._corner_distances(query, candidates)
+        if dist is None:
+            return np.ones(len(candidates), np.float64)
+        err = self._feature_errors_from(dist)
+        err[~valid] = 1.0
+        return err
+
+    def _feature_errors_from(self, dist: npt.NDArray[np.float32]) -> FloatArray:
+        """``(C,)`` mean nearest-corner distance from a ``(Kq, C, K)`` distance tensor; with
+        ``symmetric`` also the mean from each candidate corner to its nearest query corner."""
+        err = self._to_distance(dist.min(axis=2)).mean(axis=0)  # query -> candidate
+        if self.params.symmetric:
+            back = dist.min(axis=0)  # (C, K), huge for padding
+            real = back < 1e5
+            counts = np.maximum(real.sum(axis=1), 1)
+            back_d = np.where(real, self._to_distance(back), 0.0)
+            err = 0.5 * (err + back_d.sum(axis=1) / counts)
+        return err
+
+    def _corner_distances(
+        self, query: ImageFeatures, candidates: IntArray
+    ) -> tuple[npt.NDArray[np.float32] | None, npt.NDArray[np.bool_]]:
+        """``(Kq, C, K)`` descriptor dissimilarities and which candidates have corners.
+
+        grad36: *squared* Euclidean distance of descriptors scaled to nominal unit norm (take
+        the square root after any min); ORB: Hamming distance / bits. Padding slots hold a huge
+        value so they never win a min.
+        """
+        kq = query.n_keypoints
+        c = len(candidates)
+        nk = self._nkp[candidates]
+        valid = nk > 0
+        if kq == 0 or c == 0 or not valid.any():
+            return None, valid
+        k = self._k
+        flat = self._desc[candidates].reshape(c * k, self._d)  # (C*K, D) uint8
+        pad = (np.arange(k)[None, :] >= nk[:, None]).ravel()  # (C*K,)
+        fp = self.params.features
+        if fp.descriptor == "grad36":
+            scale = np.float32(fp.clip / 255.0)
+            qf = query.descriptors.astype(np.float32) * scale
+            cf = flat.astype(np.float32) * scale
+            c2 = np.einsum("ij,ij->i", cf, cf)
+            c2[pad] = 1e6
+            q2 = np.einsum("ij,ij->i", qf, qf)
+            dd = qf @ (-2.0 * cf).T  # (Kq, C*K)
+            dd += c2[None, :]
+            dd += q2[:, None]
+        else:
+            bits = 8.0 * self._d
+            qf = np.unpackbits(query.descriptors, axis=1).astype(np.float32) * 2.0 - 1.0
+            cf = np.unpackbits(flat, axis=1).astype(np.float32) * 2.0 - 1.0
+            dd = qf @ cf.T  # (Kq, C*K): bits - 2 * hamming
+            dd *= np.float32(-1.0 / (2.0 * bits))
+            dd += np.float32(0.5)
+            dd[:, pad] = 1e6
+        return dd.reshape(kq, c, k), valid
+
+    def _to_distance(self, x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+        """Map values of :meth:`_corner_distances` (after a min) to distances."""
+        x = np.asarray(x, np.float64)
+        if self.params.features.descriptor == "grad36":
+            return np.sqrt(np.maximum(x, 0.0))
+        return x
+
+    def _geometric_errors(
+        self, query: ImageFeatures, candidates: IntArray, dist: npt.NDArray[np.float32] | None
+    ) -> FloatArray:
+        """``(C,)`` 1 - RANSAC inlier fraction for each of ``candidates`` (1 when unverifiable)."""
+        p = self.params
+        out = np.ones(len(candidates), np.float64)
+        if dist is None:
+            return out
+        kq = query.n_keypoints
+        for j, i in enumerate(candidates):
+            nk = int(self._nkp[i])
+            if nk < p.min_matches:
+                continue
+            d = dist[:, j, :nk]  # (Kq, nk)
+            fwd = d.argmin(axis=1)
+            back = d.argmin(axis=0)
+            mutual = back[fwd] == np.arange(kq)
+            if int(mutual.sum()) < p.min_matches:
+                continue
+            src = query.keypoints[mutual].astype(np.float32)
+            dst = self._kp[i, fwd[mutual]].astype(np.float32)
+            _, mask = cv2.findHomography(src, dst, cv2.RANSAC, p.ransac_threshold)
+            if mask is None:
+                continue
+            out[j] = 1.0 - float(mask.sum()) / float(max(kq, 1))
+        return out
+
+    def query(self, features: ImageFeatures, *, n_states: int | None = None) -> Similarity:
+        """Similarity of a frame to every stored image and every state.
+
+        Args:
+            features: the frame's features (extracted with ``params.features``).
+            n_states: number of upper states; defaults to ``max(state) + 1``. States without
+                images get ``floor``.
+
+        Returns:
+            :class:`Similarity` (see there for shapes).
+        """
+        p = self.params
+        n = self._n
+        max_state = int(self._state[:n].max()) if n else -1
+        ns = max_state + 1 if n_states is None else int(n_states)
+        if ns <= max_state:
+            raise ValueError(f"n_states={ns} but the index holds state {max_state}")
+        if n == 0:
+            empty = np.zeros(0, np.int64)
+            return Similarity(
+                image=np.zeros(0),
+                state=np.full(ns, p.floor),
+                best_image=np.full(ns, -1, np.int64),
+                candidates=empty,
+                first_pass_ms=0.0,
+                second_pass_ms=0.0,
+            )
+
+        t0 = time.perf_counter()
+        d = self.signature_distances(features)
+        m = min(p.n_candidates, n)
+        top = np.argpartition(d, m - 1)[:m] if m < n else np.arange(n)
+        _, best = self._best_per_state(d)
+        cand = np.union1d(top, best).astype(np.int64)
+        t1 = time.perf_counter()
+
+        dist, valid = self._corner_distances(features, cand)
+        if dist is None:
+            e_feat = np.ones(len(cand), np.float64)
+        else:
+            e_feat = self._feature_errors_from(dist)
+            e_feat[~valid] = 1.0
+        e = p.feature_weight * e_feat + p.signature_weight * d[cand].astype(np.float64)
+        if p.geometric and p.geometric_weight > 0:
+            g = min(p.geometric_top, len(cand))
+            verify = np.argsort(e, kind="stable")[:g]
+            e_geo = np.ones(len(cand), np.float64)
+            e_geo[verify] = self._geometric_errors(features, cand[verify], dist)
+            e = e + p.geometric_weight * e_geo
+        sim_c = _normalise_errors(e, p.floor)
+
+        image = self._spread(cand, sim_c, ns)
+        state = np.full(ns, p.floor, np.float64)
+        np.maximum.at(state, self._state[cand], sim_c)
+        best_image = np.full(ns, -1, np.int64)
+        # best image of each state = its best candidate (every state has one candidate)
+        order = np.lexsort((-sim_c, self._state[cand]))
+        cs = self._state[cand][order]
+        firsts = np.r_[True, cs[1:] != cs[:-1]]
+        best_image[cs[firsts]] = cand[order][firsts]
+        ranked = cand[np.argsort(-sim_c, kind="stable")]
+        t2 = time.perf_counter()
+        return Similarity(
+            image=image,
+            state=state,
+            best_image=best_image,
+            candidates=ranked,
+            first_pass_ms=(t1 - t0) * 1e3,
+            second_pass_ms=(t2 - t1) * 1e3,
+        )
+
+    def _spread(self, cand: IntArray, sim_c: FloatArray, n_states: int) -> FloatArray:
+        """Per-image similarity: candidates keep theirs, others get ``outside_factor`` times the
+        smallest candidate similarity of their state, never below ``floor``."""
+        p = self.params
+        n = self._n
+        smallest = np.full(n_states, np.inf)
+        np.minimum.at(smallest, self._state[cand], sim_c)
+        smallest[~np.isfinite(smallest)] = p.floor
+        image = np.maximum(p.outside_factor * smallest[self._state[:n]], p.floor)
+        image[cand] = sim_c
+        return image
+
+
+def _normalise_errors(e: FloatArray, floor: float) -> FloatArray:
+    """Eq. (4) over the candidates, then the floor: ``(C,)`` in [floor, 1]; the best is 1."""
+    lo, hi = float(e.min()), float(e.max())
+    if hi - lo <= 1e-12:
+        return np.ones_like(e)
+    return np.maximum(1.0 - (e - lo) / (hi - lo), floor)
+
+
+# ------------------------------------------------------------------------------ weights
+
+
+@dataclass(frozen=True)
+class LearnParams:
+    """Gradient descent of the signature weights (001 section 5.2).
+
+    Attributes:
+        min_images: fewer images than this -> :func:`default_weights`.
+        min_states: fewer states with at least two images than this -> defaults.
+        positive_window: a positive pair is two images of the same state at most this many
+            places apart in insertion order (images along an edge change as the robot moves).
+        n_anchors: anchors sampled per run.
+        n_negatives: images of other states compared with each anchor.
+        iterations, learning_rate: projected gradient descent on the simplex.
+        temperature: softness of the triplet loss (signature distance units).
+        margin: required gap between negative and positive distance.
+        prior: pull towards the default weights (L2), keeps small tours sane.
+        seed: random seed (learning is deterministic for a given tour).
+    """
+
+    min_images: int = 20
+    min_states: int = 2
+    positive_window: int = 3
+    n_anchors: int = 2000
+    n_negatives: int = 64
+    iterations: int = 300
+    learning_rate: float = 0.05
+    temperature: float = 0.05
+    margin: float = 0.05
+    prior: float = 0.05
+    seed: int = 0
+
+
+def learn_weights(
+    signatures_or_index: npt.ArrayLike | TourIndex,
+    states: npt.ArrayLike | None = None,
+    *,
+    params: EngineParams = EngineParams(),
+    learn: LearnParams = LearnParams(),
+) -> FloatArray:
+    """Learn the signature block weights of one tour.
+
+    Minimises the mean soft triplet loss ``softplus((w.d_pos - w.d_neg + margin) / T)`` over
+    anchors, positives (same state, at most ``positive_window`` apart in insertion order) and
+    negatives (other states), plus ``prior * ||w - w_default||^2``, by projected gradient
+    descent with ``w >= 0, sum(w) = 1``.
+
+    Args:
+        signatures_or_index: ``(n, S)`` signatures or a :class:`TourIndex` (then ``states``
+            may be omitted).
+        states: ``(n,)`` int upper state of each image.
+        params: engine parameters (for the signature layout).
+        learn: optimiser settings and the too-small thresholds.
+
+    Returns:
+        ``(T,) float64`` weights summing to 1; :func:`default_weights` when the tour is too small
+        (fewer than ``learn.min_images`` images or ``learn.min_states`` states with two images).
+    """
+    if isinstance(signatures_or_index, TourIndex):
+        sig = np.asarray(signatures_or_index.signatures, np.float64)
+        st = signatures_or_index.states if states is None else np.asarray(states, np.int64)
+    else:
+        sig = np.asarray(signatures_or_index, np.float64)
+        if states is None:
+            raise ValueError("give the state of every image")
+        st = np.asarray(states, np.int64).ravel()
+    w0 = default_weights(params.features)
+    if params.weights is not None:
+        w0 = _normalise_weights(params.weights, len(w0))
+    n = len(sig)
+    if sig.ndim != 2 or len(st) != n:
+        raise ValueError(f"signatures {sig.shape} and states {st.shape} do not match")
+    if n < learn.min_images:
+        return w0
+    bounds = _block_bounds(params.features)
+    if sig.shape[1] != bounds[-1]:
+        raise ValueError(f"signatures have {sig.shape[1]} values, expected {bounds[-1]}")
+
+    # positive pairs: same state, close in insertion order
+    idx = np.arange(n)
+    pairs_a: list[IntArray] = []
+    pairs_b: list[IntArray] = []
+    for off in range(1, learn.positive_window + 1):
+        same = st[off:] == st[:-off]
+        pairs_a.append(idx[:-off][same])
+        pairs_b.append(idx[off:][same])
+    pa = np.concatenate(pairs_a) if pairs_a else np.zeros(0, np.int64)
+    pb = np.concatenate(pairs_b) if pairs_b else np.zeros(0, np.int64)
+    multi = np.unique(st[pa]) if len(pa) else np.zeros(0, np.int64)
+    if len(multi) < learn.min_states or len(np.unique(st)) < 2:
+        return w0
+
+    rng = np.random.default_rng(learn.seed)
+    pick = rng.choice(len(pa), size=min(learn.n_anchors, len(pa)), replace=False)
+    a, b = pa[pick], pb[pick]
+    neg = rng.integers(0, n, size=(len(a), learn.n_negatives))
+    ok = st[neg] != st[a][:, None]  # (M, Nn) which negatives really are negatives
+
+    def blocks(x: IntArray, y: npt.NDArray[np.int64]) -> FloatArray:
+        diff = sig[y] - sig[x][:, None, :] if y.ndim == 2 else sig[y] - sig[x]
+        sq = diff * diff
+        return np.add.reduceat(sq, bounds[:-1], axis=-1)
+
+    d_pos = blocks(a, b)  # (M, T)
+    d_neg = blocks(a, neg)  # (M, Nn, T)
+    delta = d_pos[:, None, :] - d_neg  # (M, Nn, T)
+    weight = ok.astype(np.float64) / max(int(ok.sum()), 1)
+    w = w0.copy()
+    for it in range(learn.iterations):
+        step = learn.learning_rate / np.sqrt(1.0 + it)
+        z = (delta @ w + learn.margin) / learn.temperature
+        s = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))  # d softplus / dz
+        grad = np.einsum("mn,mnt->t", s * weight, delta) / learn.temperature
+        grad += 2.0 * learn.prior * (w - w0)
+        w = _project_simplex(w - step * grad / max(np.abs(grad).max(), 1e-12))
+    return w
+
+
+def _project_simplex(v: FloatArray) -> FloatArray:
+    """Euclidean projection onto ``{w >= 0, sum w = 1}``."""
+    u = np.sort(v)[::-1]
+    css = np.cumsum(u) - 1.0
+    k = np.arange(1, len(v) + 1)
+    rho = int(np.nonzero(u - css / k > 0)[0][-1])
+    theta = css[rho] / (rho + 1.0)
+    return np.maximum(v - theta, 0.0)

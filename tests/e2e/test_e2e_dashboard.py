@@ -1,0 +1,103 @@
+"""End to end: the dashboard in headless Chromium while a robot navigates the taught corridor.
+
+The API and the dashboard run in this process (as ``teachrepeat serve`` runs them); a robot
+client teaches the corridor reference frames over HTTP, then streams the query frames from a
+background thread while the browser loads the dashboard, picks a goal and presses Go.
+The screenshot is saved to ``docs/img/dashboard.png``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Error as PlaywrightError
+
+from robot_client.client import TeachRepeatClient
+from web.bench import (
+    CHROMIUM,
+    FrameStreamer,
+    headless_browser,
+    query_frames,
+    register,
+    start_live_server,
+    teach_corridor,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+SCREENSHOT = ROOT / "docs" / "img" / "dashboard.png"
+
+
+def chromium() -> str:
+    if not Path(CHROMIUM).exists():
+        message = f"Chromium not found at {CHROMIUM}: install it (apt-get install chromium)"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(message)
+        pytest.skip(message)
+    return CHROMIUM
+
+
+def test_dashboard_shows_a_navigating_robot_and_sends_it_somewhere(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    executable = chromium()
+    started = time.monotonic()
+    live = start_live_server(tmp_path / "e2e.sqlite")
+    dashboard = live.dashboard
+    assert dashboard is not None
+    streamer: FrameStreamer | None = None
+    try:
+        token = register(live.url, "rover")
+        with TeachRepeatClient(live.url, token) as client:
+            teach_corridor(client, shared_data)
+            client.goto("rover", "kitchen")
+            streamer = FrameStreamer(client, "rover", query_frames(shared_data), goals=())
+            streamer.start()
+            with headless_browser(dashboard.url, executable=executable) as page:
+                page.wait_for_selector("canvas", timeout=30_000)
+                page.get_by_text("Action: ").first.wait_for(timeout=20_000)
+                # the graph: the 3D canvas is laid out, and the places are in the scene
+                canvas = page.locator("canvas").first.bounding_box()
+                assert canvas is not None and canvas["width"] > 300 and canvas["height"] > 300
+                # camera | best match, and the target image: decoded, non-empty images
+                page.wait_for_function(
+                    "() => [...document.images].filter(i => i.naturalWidth > 300).length >= 1"
+                )
+                boxes = [img.bounding_box() for img in page.locator("img").all()]
+                sizes = [b["width"] * b["height"] for b in boxes if b is not None]
+                assert len([s for s in sizes if s > 0]) >= 2, boxes
+                body = " ".join(page.locator("body").inner_text().split())
+                assert "Task 1 to kitchen" in body and "Action: " in body, body[:2000]
+
+                # pick a goal and press Go, as a user would
+                page.get_by_role("combobox", name="Goal").click()
+                page.get_by_role("option", name="office", exact=True).click()
+                page.get_by_role("button", name="Go", exact=True).click()
+                page.get_by_text("task 2 to office is underway").first.wait_for(timeout=10_000)
+                state = live.services.robot_state("rover")
+                assert state.mode == "navigating", state
+                assert state.navigation is not None and state.navigation.task is not None
+                assert state.navigation.task.goal == "office"
+                assert state.navigation.task.state == "underway"
+
+                # close viser's "software WebGL" notice before the screenshot
+                notices = page.locator(".mantine-Notification-closeButton")
+                for _ in range(5):
+                    if notices.count() == 0:
+                        break
+                    with contextlib.suppress(PlaywrightError):  # may close by itself first
+                        notices.first.click(timeout=1000)
+                    page.wait_for_timeout(300)
+                page.wait_for_timeout(1500)
+                SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+                page.screenshot(path=str(SCREENSHOT))
+    finally:
+        if streamer is not None:
+            streamer.stop()
+        live.stop()
+    assert streamer.sent > 5 and not streamer.errors, streamer.errors
+    assert SCREENSHOT.stat().st_size > 50_000
+    assert time.monotonic() - started < 60

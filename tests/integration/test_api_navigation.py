@@ -1,0 +1,174 @@
+"""Navigation endpoints on a tour taught from the real corridor frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from conftest import Api, make_jpeg
+
+JPEG = {"Content-Type": "image/jpeg"}
+MARKS = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
+
+
+def teach_corridor(api: Api, robot: dict[str, str], frames: Path) -> int:
+    tour_id = api.client.post("/tours", json={"name": "corridor"}, headers=robot).json()["id"]
+    api.client.post("/robots/rover/teach/start", json={"tour": tour_id}, headers=robot)
+    for k, path in enumerate(sorted(frames.glob("*.jpg"))):
+        params = {"timestamp": k / 10, "v": 0.3}
+        if k in MARKS:
+            r = api.client.post(
+                "/robots/rover/teach/locations", json={"name": MARKS[k]}, headers=robot
+            )
+            assert r.status_code == 200, r.text
+            url = "/robots/rover/teach/spin"
+        else:
+            url = "/robots/rover/frames"
+        r = api.client.post(
+            url, params=params, content=path.read_bytes(), headers={**robot, **JPEG}
+        )
+        assert r.status_code == 200, r.text
+    assert api.client.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+    return int(tour_id)
+
+
+@pytest.fixture()
+def taught(api: Api, shared_data: Path) -> tuple[Api, dict[str, str], int]:
+    robot = api.register()
+    tour_id = teach_corridor(api, robot, shared_data / "corridor" / "ref")
+    return api, robot, tour_id
+
+
+def post_frame(api: Api, robot: dict[str, str], path: Path, t: float, **extra: object):
+    return api.client.post(
+        "/robots/rover/frames",
+        params={"timestamp": t, "v": 0.3, **extra},
+        content=path.read_bytes(),
+        headers={**robot, **JPEG},
+    )
+
+
+def test_goto_then_frames_are_answered_with_commands(
+    taught: tuple[Api, dict[str, str], int], shared_data: Path
+) -> None:
+    api, robot, tour_id = taught
+    r = api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    assert r.status_code == 200, r.text
+    task = r.json()
+    assert (task["goal"], task["state"], task["tour"]) == ("kitchen", "underway", tour_id)
+    state = api.client.get("/robots/rover/state", headers=robot).json()
+    assert state["mode"] == "navigating"
+    queries = sorted((shared_data / "corridor" / "query").glob("*.jpg"))
+    for k, path in enumerate(queries[:20]):
+        r = post_frame(api, robot, path, 100 + k / 10, depth=[2.0, 1.5, 3.0])
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["mode"] == "navigating"
+        command = body["command"]
+        assert command["ttl_s"] > 0
+        assert command["action"] in {"rotate_and_find_edge", "navigate", "explore", "do_nothing"}
+        assert abs(sum(body["votes"].values()) - 1.0) < 1e-6
+        top = body["belief"]["top"]
+        assert top and abs(top[0]["probability"]) <= 1.0
+    # after 20 frames from the start of the corridor the belief is on its first part
+    assert top[0]["name"] in {"entry", "entry -> hall"}, top
+    r = api.client.post("/robots/rover/stop", headers=robot)
+    assert r.status_code == 200 and r.json()["state"] == "cancelled"
+    state = api.client.get("/robots/rover/state", headers=robot).json()
+    assert state["mode"] == "idle" and state["navigation"]["task"]["state"] == "cancelled"
+    # frames after the task ended keep the belief up to date and say: stand still
+    r = post_frame(api, robot, queries[21], 103.0)
+    assert r.json()["command"]["v"] == 0.0 and r.json()["command"]["w"] == 0.0
+
+
+def test_goto_unknown_place_is_404(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, _ = taught
+    before = api.dump()
+    r = api.client.post("/robots/rover/goto", json={"location": "attic"}, headers=robot)
+    assert r.status_code == 404 and "attic" in r.json()["detail"]
+    assert "kitchen" in r.json()["detail"]  # says which places exist
+    assert api.dump() == before
+
+
+def test_goto_unknown_tour_is_404(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, _ = taught
+    r = api.client.post(
+        "/robots/rover/goto", json={"location": "kitchen", "tour": 99}, headers=robot
+    )
+    assert r.status_code == 404 and "no tour" in r.json()["detail"]
+
+
+def test_goto_while_teaching_is_409(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, tour_id = taught
+    api.client.post("/robots/rover/teach/start", json={"tour": tour_id}, headers=robot)
+    before = api.dump()
+    r = api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    assert r.status_code == 409 and "teaching" in r.json()["detail"]
+    assert api.dump() == before
+
+
+def test_teach_while_navigating_is_409(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, tour_id = taught
+    api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    r = api.client.post("/robots/rover/teach/start", json={"tour": tour_id}, headers=robot)
+    assert r.status_code == 409 and "navigating" in r.json()["detail"]
+
+
+def test_stop_with_nothing_running_is_409(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, _ = taught
+    before = api.dump()
+    r = api.client.post("/robots/rover/stop", headers=robot)
+    assert r.status_code == 409 and "nothing to stop" in r.json()["detail"]
+    assert api.dump() == before
+
+
+def test_frames_with_bad_depth_are_422(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, robot, _ = taught
+    api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    r = api.client.post(
+        "/robots/rover/frames",
+        params={"timestamp": 1.0, "depth": [1.0, -2.0]},
+        content=make_jpeg(),
+        headers={**robot, **JPEG},
+    )
+    assert r.status_code == 422 and "depth" in r.json()["detail"]
+
+
+def test_navigation_frames_going_backwards_are_422(
+    taught: tuple[Api, dict[str, str], int], shared_data: Path
+) -> None:
+    api, robot, _ = taught
+    api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    frame = shared_data / "corridor" / "query" / "0000000.jpg"
+    assert post_frame(api, robot, frame, 5.0).status_code == 200
+    r = post_frame(api, robot, frame, 4.0)
+    assert r.status_code == 422 and "backwards" in r.json()["detail"]
+
+
+def test_another_robot_cannot_drive_this_one(taught: tuple[Api, dict[str, str], int]) -> None:
+    api, _, _ = taught
+    other = api.register("other")
+    for method, path, kwargs in [
+        ("POST", "/robots/rover/goto", {"json": {"location": "kitchen"}}),
+        ("POST", "/robots/rover/stop", {}),
+    ]:
+        r = api.client.request(method, path, headers=other, **kwargs)
+        assert r.status_code == 403 and "belongs to robot 'other'" in r.json()["detail"]
+
+
+def test_the_tour_is_rebuilt_after_more_teaching(
+    taught: tuple[Api, dict[str, str], int], shared_data: Path
+) -> None:
+    api, robot, tour_id = taught
+    api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    api.client.post("/robots/rover/stop", headers=robot)
+    # teach one more place after the kitchen
+    api.client.post("/robots/rover/teach/start", json={"tour": tour_id}, headers=robot)
+    api.client.post("/robots/rover/teach/locations", json={"name": "kitchen"}, headers=robot)
+    queries = sorted((shared_data / "corridor" / "query").glob("*.jpg"))
+    for k, path in enumerate(queries[:5]):
+        assert post_frame(api, robot, path, 200 + k).status_code == 200
+    api.client.post("/robots/rover/teach/locations", json={"name": "garden"}, headers=robot)
+    api.client.post("/robots/rover/teach/finish", headers=robot)
+    r = api.client.post("/robots/rover/goto", json={"location": "garden"}, headers=robot)
+    assert r.status_code == 200, r.text

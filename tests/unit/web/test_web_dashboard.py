@@ -1,0 +1,240 @@
+"""The dashboard's controls, driven without a browser against real services on a temp SQLite.
+
+Assigning ``True`` to a viser button's value runs its click callbacks (with no client), exactly
+as a click in the browser does; snapshots are published by hand for deterministic checks.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import make_jpeg
+from pydantic import SecretStr
+
+from server import schemas
+from server.services.container import Services
+from web.dashboard import NONE, Dashboard
+from web.publisher import Publisher
+
+
+@pytest.fixture()
+def services(tmp_path: Path) -> Iterator[Services]:
+    from server.app import create_app
+    from server.config import Settings
+
+    settings = Settings(
+        db=tmp_path / "dash.sqlite", admin_token=SecretStr("dash-admin"), dashboard_port=None
+    )
+    services: Services = create_app(settings).state.services
+    yield services
+    services.close()
+
+
+@pytest.fixture()
+def dash(services: Services) -> Iterator[Dashboard]:
+    d = Dashboard(services, port=0)
+    d.start()
+    d.publisher.stop()  # the tests publish by hand: deterministic
+    yield d
+    d.stop()
+
+
+def meta(t: float) -> schemas.FrameMeta:
+    return schemas.FrameMeta(timestamp=t, v=0.3, w=0.0)
+
+
+def teach(
+    services: Services, robot: str = "rover", places: tuple[str, ...] = ("a", "b", "c")
+) -> int:
+    """Register ``robot`` and teach a line of places, 4 frames per path; returns the tour id."""
+    services.robots.register(schemas.RobotCreate(name=robot))
+    tour = services.tours.create(schemas.TourCreate(name="home"))
+    services.teaching.start(robot, schemas.TeachStart(tour=tour.id))
+    t, seed = 0.0, 0
+    for k, name in enumerate(places):
+        if k:
+            for _ in range(4):
+                t, seed = t + 0.1, seed + 1
+                services.teaching.frame(robot, make_jpeg(seed), meta(t))
+        services.teaching.mark(robot, schemas.LocationMark(name=name))
+        t, seed = t + 0.1, seed + 1
+        services.teaching.spin_image(robot, make_jpeg(seed), meta(t))
+    services.teaching.finish(robot)
+    return tour.id
+
+
+def click(button: object) -> None:
+    button.value = True  # type: ignore[attr-defined]
+
+
+def test_shows_the_robots_the_tour_and_its_places(services: Services, dash: Dashboard) -> None:
+    tour_id = teach(services)
+    services.robots.register(schemas.RobotCreate(name="scout"))
+    snap = dash.refresh()
+    c = dash.controls
+    assert snap is not None and c is not None
+    assert c.robot.options == ("rover", "scout") and c.robot.value == "rover"
+    assert c.tour.value == f"home (#{tour_id})"
+    assert c.goal.options == ("a", "b", "c")
+    assert "**rover** is **idle**" in c.status.content
+    assert snap.graph is not None and snap.graph.n_locations == 3
+    assert dash._scene is not None and len(dash._scene.places) == 3
+    assert [label.text for label in dash._scene.labels] == ["a", "b", "c"]
+
+
+def test_go_streams_and_stop_through_the_navigation_service(
+    services: Services, dash: Dashboard
+) -> None:
+    teach(services)
+    dash.refresh()
+    c = dash.controls
+    assert c is not None
+    c.goal.value = "c"
+    click(c.go)
+    assert "task 1 to **c** is underway" in c.message.content
+    state = services.robot_state("rover")
+    assert state.mode == "navigating" and state.navigation is not None
+    assert state.navigation.task is not None and state.navigation.task.goal == "c"
+
+    for k in range(3):  # the robot sends frames; the dashboard shows the last step
+        services.frame("rover", make_jpeg(100 + k), meta(10.0 + 0.1 * k))
+    before = c.images.image.copy()
+    snap = dash.refresh()
+    assert snap is not None and snap.step is not None and snap.task is not None
+    assert snap.task.state == "underway" and snap.step.index == 3
+    assert "Task 1 to **c**: **underway**" in c.status.content
+    assert "**Action:" in c.action.content and "Entropy" in c.action.content
+    assert "Vote mass" in c.votes.content
+    assert not np.array_equal(before, c.images.image)  # camera | best match were drawn
+    assert len(c.over_time.data[0]) == 3
+    assert np.isclose(snap.step.state_belief.sum(), 1.0)
+
+    click(c.stop)
+    assert "cancelled" in c.message.content
+    assert services.robot_state("rover").mode == "idle"
+
+
+def test_refused_actions_show_the_service_message(services: Services, dash: Dashboard) -> None:
+    c = dash.controls
+    assert c is not None
+    click(c.go)  # nothing registered
+    assert c.message.content.startswith("**Error:**") and "no robot selected" in c.message.content
+
+    teach(services)
+    dash.refresh()
+    click(c.stop)
+    assert c.message.content.startswith("**Error:**")
+    assert "has no navigation underway; nothing to stop" in c.message.content
+
+    c.place_name.value = "kitchen"
+    click(c.mark)
+    assert "is not teaching, so it cannot mark a place" in c.message.content
+
+    services.teaching.start("rover", schemas.TeachStart(tour=1))
+    c.place_name.value = "   "
+    click(c.mark)
+    assert "invalid input - name:" in c.message.content  # the pydantic check of the route
+
+    click(c.go)  # the same check as POST /goto: not while teaching
+    assert "is teaching; finish or abort teaching first" in c.message.content
+
+
+def test_teaching_controls_mark_finish_and_abort(services: Services, dash: Dashboard) -> None:
+    teach(services)
+    c = dash.controls
+    assert c is not None
+    services.teaching.start("rover", schemas.TeachStart(tour=1))
+    dash.refresh()
+    assert "**rover** is **teaching**" in c.status.content
+    c.place_name.value = "c"
+    click(c.mark)
+    assert "marked known place **c**" in c.message.content
+    for k in range(3):
+        services.teaching.frame("rover", make_jpeg(200 + k), meta(50.0 + 0.1 * k))
+    dash.refresh()
+    assert "at **c**; **3** images on the open path; 3 places and 2 paths" in c.teaching.content
+
+    click(c.finish)  # the open path does not end at a place
+    assert "the open path has 3 frames that do not end at a place" in c.message.content
+    c.place_name.value = "d"
+    click(c.mark)
+    assert "marked new place **d**, closing a path of 3" in c.message.content
+    snap = dash.refresh()
+    assert snap is not None and snap.graph is not None and snap.graph.n_locations == 4
+    assert c.goal.options == ("a", "b", "c", "d")
+    services.teaching.frame("rover", make_jpeg(300), meta(60.0))
+    click(c.abort)
+    assert "teaching aborted; 1 images of the open path discarded" in c.message.content
+    assert services.robot_state("rover").mode == "idle"
+    assert "Not teaching" in (dash.refresh() and c.teaching.content)
+
+
+def test_selecting_another_robot_shows_it(services: Services, dash: Dashboard) -> None:
+    teach(services)
+    services.robots.register(schemas.RobotCreate(name="scout"))
+    dash.refresh()
+    c = dash.controls
+    assert c is not None
+    c.robot.value = "scout"
+    dash.refresh()
+    assert c.robot.value == "scout" and "**scout** is **idle**" in c.status.content
+    c.goal.value = "b"
+    click(c.go)
+    assert services.robot_state("scout").mode == "navigating"
+    assert services.robot_state("rover").mode == "idle"
+
+
+def test_the_publisher_never_waits_for_a_session_lock(services: Services) -> None:
+    teach(services)
+    services.navigation.goto("rover", schemas.GotoRequest(location="b"))
+    services.frame("rover", make_jpeg(7), meta(20.0))
+    session = services.navigation.sessions()["rover"]
+    publisher = Publisher(services, selection=lambda: ("rover", None))
+    done = threading.Event()
+    with session.lock:  # as if a step were running
+        worker = threading.Thread(target=lambda: (publisher.publish_once(), done.set()))
+        worker.start()
+        assert done.wait(5.0), "the snapshot waited for the session lock"
+    snap = publisher.latest
+    assert snap is not None and snap.step is not None and snap.mode == "navigating"
+
+
+def test_the_publisher_keeps_to_five_snapshots_a_second(services: Services) -> None:
+    publisher = Publisher(services, selection=lambda: (None, None), hz=100.0)
+    assert publisher.period_s == pytest.approx(0.2)
+    publisher.start()
+    try:
+        for _ in range(20):
+            publisher.poke()
+            threading.Event().wait(0.05)
+    finally:
+        publisher.stop()
+    assert 3 <= publisher.published <= 7  # ~1 s of pokes every 50 ms
+
+
+def test_a_busy_port_is_detected_and_reported(services: Services) -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        d = Dashboard(services, port=port)
+        try:
+            with pytest.warns(RuntimeWarning, match=f"dashboard port {port} is busy"):
+                used = d.start()
+            assert used != port and used == d.port
+        finally:
+            d.stop()
+
+
+def test_an_empty_server_shows_placeholders(services: Services, dash: Dashboard) -> None:
+    snap = dash.refresh()
+    c = dash.controls
+    assert snap is not None and c is not None
+    assert snap.robot is None and snap.graph is None
+    assert c.robot.value == NONE and c.goal.options == (NONE,)
+    assert "No robot registered yet" in c.status.content
