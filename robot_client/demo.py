@@ -124,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
             goals: list[str] = []
             for _ in range(args.goals):
                 goals.append(rng.choice([n for n in names if not goals or n != goals[-1]]))
+            taught = client.tour(tour_id)
             client.goto(DEMO_ROBOT, goals[0], tour=tour_id)
             for goal in goals:
                 with tqdm(desc=f"to {goal}", unit="step", disable=args.quiet) as bar:
@@ -134,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
                         action = result.command.action  # type: ignore[attr-defined]
                         bar.set_postfix_str(f"{action}, thinks: {top.name} {top.probability:.2f}")
 
-                    result = run_trial(client, DEMO_ROBOT, robot, plan, goal, on_step=show)
+                    result = run_trial(
+                        client, DEMO_ROBOT, robot, plan, goal, tour=taught, on_step=show
+                    )
                 results.append(result)
                 verdict = "arrived" if result.success else f"{result.state} ({result.reason})"
                 print(

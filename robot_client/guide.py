@@ -33,10 +33,13 @@ DEFAULT_ROUTE: tuple[str, ...] = (
     "office",
     "hall",
     "kitchen",
+    "hall",
+    "living room",
+    "kitchen",
     "living room",
     "entry",
 )
-"""A walk that teaches every place and a way to and from each: the hall is the hub."""
+"""A walk that teaches every place, and every pair of neighbouring places both ways."""
 
 
 @dataclass(frozen=True)

@@ -11,11 +11,14 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import networkx as nx
+
 from robot_client.client import ApiError, TeachRepeatClient
 from robot_client.navigate import LoopParams, StepHook, drive
 from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.paths import NoPathError, path_length, shortest_path
 from robot_client.sim.robot import SimulatedRobot
+from server import schemas
 
 SUCCESS_RADIUS_M = 0.5
 """A trial succeeds when the robot says "arrived" within this distance of the goal place."""
@@ -34,16 +37,57 @@ class TrialResult:
     time_s: float  # simulated seconds
     driven_m: float
     shortest_m: float  # free-space shortest path from start to goal (A* on the plan)
+    taught_m: float  # shortest taught route: to a place through free space, then taught edges
     steps: int
     explore_fraction: float
     actions: dict[str, int]
 
     @property
     def path_ratio(self) -> float:
+        """Driven metres / the shortest taught route (the issue's path ratio)."""
+        return self.driven_m / self.taught_m if self.taught_m > 0 else math.nan
+
+    @property
+    def free_space_ratio(self) -> float:
+        """Driven metres / the free-space shortest path (stricter: ignores what was taught)."""
         return self.driven_m / self.shortest_m if self.shortest_m > 0 else math.nan
 
     def row(self) -> dict[str, Any]:
-        return {**asdict(self), "path_ratio": self.path_ratio}
+        return {
+            **asdict(self),
+            "path_ratio": self.path_ratio,
+            "free_space_ratio": self.free_space_ratio,
+        }
+
+
+def taught_route_m(
+    world: Any,
+    plan: FloorPlan,
+    tour: schemas.TourGraphPublic,
+    start: tuple[float, float],
+    goal: str,
+) -> float:
+    """Length of the shortest taught route from ``start`` to ``goal``: through free space to
+    some place, then along taught edges (their taught lengths); the best such place."""
+    graph = nx.DiGraph()
+    for e in tour.edges:
+        w = e.length_m
+        if graph.has_edge(e.source_name, e.target_name):
+            w = min(w, graph[e.source_name][e.target_name]["weight"])
+        graph.add_edge(e.source_name, e.target_name, weight=w)
+    if goal not in graph:
+        return math.nan
+    to_goal = nx.single_source_dijkstra_path_length(graph.reverse(copy=False), goal)
+    best = math.inf
+    for place in plan.places:
+        if place.name not in to_goal:
+            continue
+        try:
+            walk = path_length(shortest_path(world, start, (place.x, place.y)))
+        except NoPathError:
+            continue
+        best = min(best, walk + to_goal[place.name])
+    return best if math.isfinite(best) else math.nan
 
 
 def nearest_place(plan: FloorPlan, x: float, y: float) -> tuple[str, float]:
@@ -58,10 +102,13 @@ def run_trial(
     plan: FloorPlan,
     goal: str,
     *,
+    tour: schemas.TourGraphPublic | None = None,
     max_steps: int = 2000,
     on_step: StepHook | None = None,
 ) -> TrialResult:
-    """Send the robot to ``goal`` from wherever it stands and drive until the task ends."""
+    """Send the robot to ``goal`` from wherever it stands and drive until the task ends.
+
+    ``tour`` (the taught graph) gives the shortest taught route for the path ratio."""
     place = next(p for p in plan.places if p.name == goal)
     pose = robot.pose
     start = (pose.x, pose.y, pose.theta)
@@ -69,6 +116,9 @@ def run_trial(
         shortest = path_length(shortest_path(robot.world, (pose.x, pose.y), (place.x, place.y)))
     except NoPathError:
         shortest = math.nan
+    taught = math.nan
+    if tour is not None:
+        taught = taught_route_m(robot.world, plan, tour, (pose.x, pose.y), goal)
     t0, odo0 = robot.now(), robot.odometer
     client.goto(robot_name, goal)
     outcome = drive(
@@ -107,6 +157,7 @@ def run_trial(
         time_s=robot.now() - t0,
         driven_m=robot.odometer - odo0,
         shortest_m=shortest,
+        taught_m=taught,
         steps=outcome.steps,
         explore_fraction=explore / outcome.steps if outcome.steps else 0.0,
         actions=outcome.actions,

@@ -47,6 +47,9 @@ class MotionParams:
       onto the edge.
     * ``lost_similarity`` (0.25) and ``lost_steps`` (5): a robot driving onto an edge gives up
       and spins again after this many frames whose best match on the edge is below the former.
+    * ``find_turns`` (1.25) and ``unstick_s`` (4 s): when RotateAndFindEdge has turned this many
+      times without finding its edge, the start of the edge is not in sight from here; the
+      robot explores toward open space for ``unstick_s`` and then looks again (001 7.1).
     """
 
     cruise_v: float = 0.25
@@ -66,6 +69,8 @@ class MotionParams:
     found_offset: float = 0.06
     lost_similarity: float = 0.25
     lost_steps: int = 5
+    find_turns: float = 1.25
+    unstick_s: float = 4.0
 
     def __post_init__(self) -> None:
         if not 0 < self.avoid_full_m < self.avoid_start_m:
@@ -138,9 +143,11 @@ def avoid_obstacles(
     """Blend obstacle avoidance into ``(v, w)`` with a weight that grows as obstacles close in.
 
     Weight 0 beyond ``avoid_start_m``, 1 at ``avoid_full_m`` and nearer. The avoidance command
-    turns toward the more open side and does not move forward.
+    turns toward the more open side and does not move forward. Turning on the spot (``v`` <= 0)
+    is left alone: a round robot cannot hit anything by turning, and blending would cancel
+    the turn it needs to find its way out.
     """
-    if depth is None or len(np.atleast_1d(depth)) == 0 or (v == 0.0 and w == 0.0):
+    if depth is None or len(np.atleast_1d(depth)) == 0 or v <= 0.0:
         return v, w
     ranges = np.asarray(depth, dtype=np.float64)
     ranges = np.where(np.isfinite(ranges), ranges, 1e3)

@@ -69,6 +69,9 @@ class EdgePublic(_Model):
     target_name: str
     image_count: int
     duration_s: float = Field(description="Last image timestamp minus first, seconds.")
+    length_m: float = Field(
+        default=0.0, description="Distance driven while taught: sum of |v| dt, metres."
+    )
     first_image_id: int
     last_image_id: int
 

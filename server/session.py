@@ -44,8 +44,11 @@ FloatArray = npt.NDArray[np.float64]
 class NavigationParams:
     """Everything that tunes navigation, with documented defaults.
 
-    * ``arrive_mass`` (0.6) and ``arrive_steps`` (3): the task is "arrived" once the goal
-      location holds at least this belief on this many consecutive frames.
+    * ``arrive_mass`` (0.6) and ``arrive_steps`` (3): the task is "arrived" once, on this many
+      consecutive frames, the goal location holds at least this belief *and* the tracker says it
+      is localised there (its conservative flag, which needs the recent images to agree with
+      the prediction: a robot carried away right after a task never "arrives" on a stale
+      belief).
     * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
     * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
     * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
@@ -198,6 +201,9 @@ class RobotSession:
         self.lock = threading.Lock()
         # RotateAndFindEdge found its edge: (edge, image index along it, frames without a match)
         self.leaving: tuple[int, int, int] | None = None
+        # radians turned looking for an edge without finding it; robot time to explore until
+        self.searched_rad = 0.0
+        self.unstick_until: float | None = None
 
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed)."""
@@ -234,7 +240,7 @@ class RobotSession:
             if task.started_robot_time is None:
                 task.started_robot_time = timestamp
             decision = decide(rt.graph, summary.belief, task.goal, rt.costs(task.goal), p.policy)
-            command = self._command(decision, features, similarity, depth)
+            command = self._command(decision, features, similarity, summary, depth, timestamp)
             self._advance_task(task, summary, decision, timestamp, wall)
             if task.state != "underway":
                 command = Command(0.0, 0.0, Action.do_nothing())
@@ -262,20 +268,29 @@ class RobotSession:
         decision: Decision,
         features: ImageFeatures,
         similarity: Similarity,
+        summary: BeliefSummary,
         depth: npt.ArrayLike | None,
+        timestamp: float = 0.0,
     ) -> Command:
         mp = self.params.motion
         action = decision.action
         target: int | None
         if action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self.leaving = None
+            self.searched_rad = 0.0
+            self.unstick_until = None
         if action.kind == ActionKind.NAVIGATE and decision.active_edge is not None:
             edge = decision.active_edge
             k = decision.target_image if decision.target_image is not None else 0
             v, w, target = self._follow(edge, k, features)
             action = Action.navigate(edge)
         elif action.kind == ActionKind.ROTATE_AND_FIND_EDGE and action.edge is not None:
-            v, w, target, action = self._find_edge(action.edge, features, similarity)
+            at_location = summary.map_state < self.runtime.graph.n_locations
+            v, w, target, action = self._find_edge(
+                action.edge, features, similarity, at_location=at_location
+            )
+            if action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
+                v, w, action = self._unstick(v, w, action, depth, timestamp)
         elif action.kind == ActionKind.EXPLORE:
             (v, w), target = explore_command(depth, mp), None
         else:
@@ -304,12 +319,41 @@ class RobotSession:
         )
         return v, w, target
 
+    def _unstick(
+        self, v: float, w: float, action: Action, depth: npt.ArrayLike | None, now: float
+    ) -> tuple[float, float, Action]:
+        """Count the turning done while searching; after ``find_turns`` full turns without
+        finding the edge, explore toward open space for ``unstick_s``, then search again."""
+        mp = self.params.motion
+        if self.unstick_until is not None:
+            if now < self.unstick_until:
+                ev, ew = explore_command(depth, mp)
+                return ev, ew, Action.explore()
+            self.unstick_until = None
+            self.searched_rad = 0.0
+        dt = 0.0 if self.last_timestamp is None else max(0.0, now - self.last_timestamp)
+        self.searched_rad += abs(w) * min(dt, self.params.max_dt_s)
+        if self.searched_rad >= 2 * np.pi * mp.find_turns:
+            self.unstick_until = now + mp.unstick_s
+            ev, ew = explore_command(depth, mp)
+            return ev, ew, Action.explore()
+        return v, w, action
+
     def _find_edge(
-        self, edge: int, features: ImageFeatures, similarity: Similarity
+        self,
+        edge: int,
+        features: ImageFeatures,
+        similarity: Similarity,
+        *,
+        at_location: bool,
     ) -> tuple[float, float, int | None, Action]:
-        """RotateAndFindEdge: spin until the view lines up with the edge's departure image,
-        then drive onto the edge (reported as Navigate, so the belief follows onto it) and keep
-        going while the frames still match the edge."""
+        """RotateAndFindEdge: spin until the view lines up with an image of the edge, then
+        drive onto the edge from there (reported as Navigate, so the belief follows onto it)
+        and keep going while the frames still match the edge.
+
+        From a location the sought images are the edge's start (up to a little past where the
+        taught robot began to move); turning back on an edge, anywhere along the reverse edge.
+        """
         rt = self.runtime
         mp = self.params.motion
         e = rt.graph.edges[edge]
@@ -323,18 +367,20 @@ class RobotSession:
                 k, misses = max(k, k - 2 + best), 0
             if misses < mp.lost_steps and k < e.n_images - 1:
                 self.leaving = (edge, k, misses)
+                self.searched_rad = 0.0
                 v, w, target = self._follow(edge, k + 1, features)
                 return v, w, target, Action.navigate(edge)
         self.leaving = None
-        k = rt.departure[edge]
-        target = rt.edge_image(edge, k)
+        hi = rt.departure[edge] + 4 if at_location else e.n_images - 1
+        window = [rt.edge_image(edge, j) for j in range(0, min(hi, e.n_images - 1) + 1)]
+        best = int(np.argmax(similarity.image[window]))
+        target = window[best]
+        view = float(similarity.image[target])
         homing = homing_offset(features, rt.features[target])
-        near = [rt.edge_image(edge, j) for j in range(k - 1, k + 3)]
-        view = float(similarity.image[near].max())
         if homing is not None and view >= mp.found_similarity:
             if abs(homing.offset) <= mp.found_offset:
-                self.leaving = (edge, k, 0)
-                v, w, target = self._follow(edge, k + 1, features)
+                self.leaving = (edge, best, 0)
+                v, w, target = self._follow(edge, best + 1, features)
                 return v, w, target, Action.navigate(edge)
             v, w = rotate_command(mp, toward=float(homing.offset))
             return v, w, target, Action.rotate(edge)
@@ -352,7 +398,8 @@ class RobotSession:
         p = self.params
         task.steps += 1
         goal_mass = float(summary.state[task.goal])
-        task.arrive_streak = task.arrive_streak + 1 if goal_mass >= p.arrive_mass else 0
+        there = summary.localised and summary.localised_state == task.goal
+        task.arrive_streak = task.arrive_streak + 1 if there and goal_mass >= p.arrive_mass else 0
         explore = decision.action.kind == ActionKind.EXPLORE
         task.explore_streak = task.explore_streak + 1 if explore else 0
         if task.arrive_streak >= p.arrive_steps:

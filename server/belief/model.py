@@ -115,9 +115,13 @@ class TransitionParams:
     """Under Navigate, mass in this last fraction of an edge may move into its target (001 7.2)."""
 
     # -- RotateAndFindEdge(g): spinning in place looking for edge g --
-    rotate_loc_to_goal_edge: float = 0.55
-    """Location -> the sought edge ``g`` when it leaves this location (> stay, 001 3.1)."""
-    rotate_loc_to_other_edges: float = 0.05
+    rotate_loc_to_goal_edge: float = 0.03
+    """Location -> the sought edge ``g`` when it leaves this location. 001 3.1 makes this larger
+    than staying, which lets the spin itself push the belief into the edge; here the motion
+    layer drives onto the edge only once the camera sees its start (then the action is
+    Navigate), so spinning moves little mass. A large value also made look-alike places
+    ping-pong: the action pulled mass out of whichever place it was acting on."""
+    rotate_loc_to_other_edges: float = 0.02
     """Location -> its other outgoing edges (total)."""
     rotate_edge_to_goal: float = 0.4
     """Edge -> ``g`` when ``g`` is its reverse or shares its origin or destination."""
@@ -221,9 +225,7 @@ def reverse_edges(graph: TourGraph) -> tuple[tuple[int, ...], ...]:
     return tuple(tuple(by_pair.get((e.target, e.source), ())) for e in graph.edges)
 
 
-def _edge_distances(
-    graph: TourGraph, turn_radius: float = 0.0
-) -> tuple[FloatArray, FloatArray]:
+def _edge_distances(graph: TourGraph, turn_radius: float = 0.0) -> tuple[FloatArray, FloatArray]:
     """Per edge: progress metres (``|v| + turn_radius |w|``) per image and seconds per image
     of the teaching run (0 when unknown)."""
     mpi = np.zeros(graph.n_edges)

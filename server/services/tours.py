@@ -25,6 +25,7 @@ def edge_public(edge: EdgeRow, names: dict[int, str]) -> schemas.EdgePublic:
         target_name=names[edge.target_id],
         image_count=len(edge.image_ids),
         duration_s=edge.duration,
+        length_m=edge.length,
         first_image_id=edge.image_ids[0],
         last_image_id=edge.image_ids[-1],
     )

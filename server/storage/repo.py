@@ -53,6 +53,12 @@ class EdgeRow:
     def duration(self) -> float:
         return self.timestamps[-1] - self.timestamps[0] if len(self.timestamps) > 1 else 0.0
 
+    @property
+    def length(self) -> float:
+        """Metres driven while taught: ``sum |v_k| (t_{k+1} - t_k)``."""
+        t = self.timestamps
+        return float(sum(abs(self.v[k]) * (t[k + 1] - t[k]) for k in range(len(t) - 1)))
+
 
 @dataclass(frozen=True)
 class ImageMeta:

