@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from server.bench.common import machine, stats
+from server.bench.common import stats
 from server.bench.common import write_json as _write_json
 from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.index import EngineParams, TourIndex, learn_weights
@@ -39,6 +39,7 @@ def _read(path: Path) -> Image:
 class Datasets:
     corridor_ref: list[Image]
     corridor_query: list[Image]
+    corridor_query_ids: list[int]
     corridor_gt: dict[int, list[int]]
     summer: list[Image]
     winter: list[Image]
@@ -55,13 +56,15 @@ def load(data: Path, quick: bool) -> Datasets:
     summer = sorted((data / "nordland" / "summer").glob("*.png"))
     winter = sorted((data / "nordland" / "winter").glob("*.png"))
     if quick:
-        summer, winter = summer[:300], winter[:300]
+        summer, winter = summer[:100], winter[:100]
+        cqry = cqry[::4]
     trip = sorted((data / "triplets").glob("p*/i*/*.jpg"))
     places = [int(p.parent.parent.name[1:]) for p in trip]
     ukb = sorted((data / "ukbench").glob("*.jpg"))
     return Datasets(
         corridor_ref=[_read(p) for p in cref],
         corridor_query=[_read(p) for p in cqry],
+        corridor_query_ids=[int(p.stem) for p in cqry],
         corridor_gt=gt,
         summer=[_read(p) for p in summer],
         winter=[_read(p) for p in winter],
@@ -82,7 +85,7 @@ class Method:
     def prepare(self, images: Sequence[Image]) -> list[Any]:
         raise NotImplementedError
 
-    def build(self, refs: list[Any], states: Sequence[int], learn_groups: Sequence[int]) -> None:
+    def build(self, refs: list[Any], states: npt.ArrayLike, learn_groups: npt.ArrayLike) -> None:
         raise NotImplementedError
 
     def rank(self, query: Any) -> npt.NDArray[np.int64]:
@@ -101,7 +104,7 @@ class Engine(Method):
         return [extract(im, self.params.features) for im in images]
 
     def build(
-        self, refs: list[ImageFeatures], states: Sequence[int], learn_groups: Sequence[int]
+        self, refs: list[ImageFeatures], states: npt.ArrayLike, learn_groups: npt.ArrayLike
     ) -> None:
         self.index = TourIndex(self.params)
         self.index.add(refs, states)
@@ -127,7 +130,7 @@ class Baseline(Method):
     name = "baseline"
 
     def __init__(self) -> None:
-        self.orb = cv2.ORB_create(nfeatures=500)
+        self.orb = cv2.ORB.create(nfeatures=500)
         self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
         self.refs: list[OrbImage] = []
 
@@ -135,13 +138,13 @@ class Baseline(Method):
         grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
         kps, desc = self.orb.detectAndCompute(grey, None)
         pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
-        return OrbImage(pts, desc)
+        return OrbImage(pts, None if desc is None else np.asarray(desc, np.uint8))
 
     def prepare(self, images: Sequence[Image]) -> list[OrbImage]:
         return [self.prepare_one(im) for im in images]
 
     def build(
-        self, refs: list[OrbImage], states: Sequence[int], learn_groups: Sequence[int]
+        self, refs: list[OrbImage], states: npt.ArrayLike, learn_groups: npt.ArrayLike
     ) -> None:
         self.refs = refs
 
@@ -170,7 +173,7 @@ def corridor(method: Method, ds: Datasets) -> dict[str, Any]:
     n = len(refs)
     method.build(refs, np.arange(n), np.arange(n) // 5)
     hit1 = hit5 = 0
-    for i, q in enumerate(qs):
+    for i, q in zip(ds.corridor_query_ids, qs, strict=True):
         ranked = method.rank(q)
         truth = set(ds.corridor_gt.get(i, []))
         hit1 += int(ranked[0]) in truth
@@ -265,6 +268,7 @@ def speed(
     baseline_queries: Sequence[int],
     images_per_state: int,
     pool: int,
+    with_baseline: bool = True,
 ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     """Per-query time on synthesised tours; returns (engine, baseline, extraction)."""
     base = ds.triplets + ds.ukbench + ds.corridor_ref + ds.corridor_query
@@ -274,13 +278,14 @@ def speed(
     query_feats = [extract(im, params.features) for im in query_imgs]
 
     frame = query_imgs[0]
-    ext = {
+    ext: dict[str, Any] = {
         "engine_ms_p50": stats(_timeit(lambda: extract(frame, params.features), 200))["p50"],
     }
     bl = Baseline()
-    ext["baseline_orb500_ms_p50"] = stats(_timeit(lambda: bl.prepare_one(frame), 50))["p50"]
-    pool_orb = bl.prepare(pool_imgs[: min(pool, 1000)])
-    query_orb = bl.prepare(query_imgs[:10])
+    if with_baseline:
+        ext["baseline_orb500_ms_p50"] = stats(_timeit(lambda: bl.prepare_one(frame), 50))["p50"]
+        pool_orb = bl.prepare(pool_imgs[: min(pool, 1000)])
+        query_orb = bl.prepare(query_imgs[:10])
 
     engine: dict[str, Any] = {}
     baseline: dict[str, Any] = {}
@@ -321,6 +326,8 @@ def speed(
             "n_queries": n_queries,
         }
         del idx
+        if not with_baseline:
+            continue
 
         nq = baseline_queries[min(si, len(baseline_queries) - 1)]
         refs = [pool_orb[(k * 7919) % len(pool_orb)] for k in range(n)]
@@ -365,29 +372,56 @@ def speed(
 # ------------------------------------------------------------------------------ driver
 
 
-def accuracy(method: Method, ds: Datasets) -> dict[str, Any]:
+def accuracy(method: Method, ds: Datasets, *, with_nordland: bool = True) -> dict[str, Any]:
     t = time.perf_counter()
-    out = {
+    out: dict[str, Any] = {
         "corridor": corridor(method, ds),
-        "nordland": nordland(method, ds),
         "triplets": triplets(method, ds),
         "ukbench": ukbench(method, ds),
     }
+    if with_nordland:
+        out["nordland"] = nordland(method, ds)
     out["accuracy_seconds"] = time.perf_counter() - t
     return out
 
 
 def _summary(acc: dict[str, Any]) -> str:
+    nord = acc.get("nordland")
+    nordland_text = (
+        f"nordland tol1 {nord['recall@1_tol1']:.3f} tol10 {nord['recall@1_tol10']:.3f}"
+        if nord
+        else "nordland skipped"
+    )
     return (
         f"corridor r@1 {acc['corridor']['recall@1']:.3f} r@5 {acc['corridor']['recall@5']:.3f} | "
-        f"nordland tol1 {acc['nordland']['recall@1_tol1']:.3f} "
-        f"tol10 {acc['nordland']['recall@1_tol10']:.3f} | "
+        f"{nordland_text} | "
         f"triplets {acc['triplets']['top1']:.3f} | ukbench {acc['ukbench']['score']:.2f}"
     )
 
 
+def limit_blas_threads(n: int = 1) -> str:
+    """Set NumPy's bundled OpenBLAS to ``n`` threads even when NumPy was imported before the
+    environment variables could act (best effort); returns what was done."""
+    import ctypes
+    import glob
+    import os
+
+    libs = glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "numpy.libs", "*openblas*"))
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_set_num_threads64_", "openblas_set_num_threads"):
+            if hasattr(lib, name):
+                getattr(lib, name)(ctypes.c_int(n))
+                return f"{name}({n})"
+    return "environment variables only"
+
+
 def run_all(args: argparse.Namespace) -> dict[str, Any]:
     cv2.setNumThreads(1)
+    blas = limit_blas_threads(1)
     quick = bool(args.quick)
     ds = load(Path(args.data), quick)
     sizes_arg = args.sizes or ("300" if quick else "1000,10000,100000")
@@ -396,9 +430,8 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     params = EngineParams()
     t0 = time.perf_counter()
 
-    engine_method = Engine(params)
-    engine = accuracy(engine_method, ds)
-    engine["learned_weights"] = engine_method.learned
+    engine = accuracy(Engine(params, learn=False), ds)
+    engine["weights"] = [float(x) for x in TourIndex(params).weights]
     print("engine  :", _summary(engine), flush=True)
     baseline = accuracy(Baseline(), ds)
     print("baseline:", _summary(baseline), flush=True)
@@ -406,13 +439,20 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     variants: dict[str, Any] = {}
     if not (quick or args.no_variants):
         other_geo = replace(params, geometric=not params.geometric)
+        # every variant learns its weights per tour (groups of consecutive references), so
+        # compare the others with "learned_weights", which differs from "engine" only there
+        p50 = replace(params, features=FeatureParams(n_features=50))
+        orb = replace(params, features=FeatureParams(descriptor="orb"))
         for name, method in (
-            (f"geometric_{'on' if other_geo.geometric else 'off'}", Engine(other_geo)),
-            ("default_weights", Engine(params, learn=False)),
-            ("features_100", Engine(replace(params, features=FeatureParams(n_features=100)))),
-            ("orb", Engine(replace(params, features=FeatureParams(descriptor="orb")))),
+            (f"geometric_{'on' if other_geo.geometric else 'off'}", Engine(other_geo, learn=True)),
+            ("learned_weights", Engine(params, learn=True)),
+            ("features_50", Engine(p50, learn=True)),
+            ("orb", Engine(orb, learn=True)),
         ):
-            variants[name] = accuracy(method, ds)
+            # ORB (256-bit unpacked) against all 1800 Nordland references costs ~10 min: skipped
+            variants[name] = accuracy(method, ds, with_nordland=name != "orb")
+            if isinstance(method, Engine) and method.learned:
+                variants[name]["learned_weights"] = method.learned
             print(f"{name:16s}:", _summary(variants[name]), flush=True)
 
     eng_speed, base_speed, extraction = speed(
@@ -422,8 +462,21 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
         n_queries=20 if quick else args.queries,
         baseline_queries=[min(b, 3) for b in bq] if quick else bq,
         images_per_state=args.images_per_state,
-        pool=min(args.pool, 200) if quick else args.pool,
+        pool=min(args.pool, 100) if quick else args.pool,
     )
+    if "features_50" in variants:
+        p50 = replace(params, features=FeatureParams(n_features=50))
+        variants["features_50"]["speed"], _, ext50 = speed(
+            ds,
+            sizes,
+            params=p50,
+            n_queries=args.queries,
+            baseline_queries=bq,
+            images_per_state=args.images_per_state,
+            pool=args.pool,
+            with_baseline=False,
+        )
+        variants["features_50"]["extraction"] = {"ms_p50": ext50["engine_ms_p50"]}
     engine["speed"] = eng_speed
     baseline["speed"] = base_speed
     engine["extraction"] = {"ms_p50": extraction["engine_ms_p50"], "size": "320x240"}
@@ -438,7 +491,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
             "engine_params": _params_dict(params),
             "baseline": "ORB nfeatures=500 on the original image, BFMatcher NORM_HAMMING "
             "knnMatch k=2, ratio 0.75, best = most good matches, every stored image",
-            "threads": "cv2.setNumThreads(1), OMP/OPENBLAS/MKL_NUM_THREADS=1",
+            "threads": f"cv2.setNumThreads(1), OMP/OPENBLAS/MKL_NUM_THREADS=1, {blas}",
             "speed_setup": extraction["notes"],
             "protocol": {
                 "corridor": "ref = index (state = each image), query -> ref, ground_truth.json",
@@ -447,6 +500,9 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
                 "triplets": "leave-one-out over 30 images, state = place",
                 "ukbench": "query included in the database, mean same-group count in top 4",
             },
+            "variants": "all variants learn their weights per tour (groups of 5 corridor / 10 "
+            "Nordland references, places for triplets; defaults where too small); compare "
+            "them with variants.learned_weights. ORB skips Nordland (too slow).",
             "seconds": time.perf_counter() - t0,
         },
     }

@@ -8,7 +8,7 @@ the caller replays the motion command recorded with the target image.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,7 +33,7 @@ class HomingParams:
     max_distance: float = 0.6
     ratio: float = 0.9
     max_dy: float = 0.15
-    features: FeatureParams = FeatureParams()
+    features: FeatureParams = field(default_factory=FeatureParams)
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ loss so that images of the same state are near and images of different states fa
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ IntArray = npt.NDArray[np.int64]
 
 #: Default signature weights (hist, thumb, desc_mean, desc_var, patch), sum 1; used when a
 #: tour is too small to learn from. Chosen on the benchmark (docs/retrieval.md).
-DEFAULT_WEIGHTS: tuple[float, ...] = (0.35, 0.1, 0.1, 0.05, 0.4)
+DEFAULT_WEIGHTS: tuple[float, ...] = (0.7, 0.0, 0.05, 0.05, 0.2)
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,7 @@ class EngineParams:
     n_candidates: int = 20
     weights: tuple[float, ...] | None = None
     feature_weight: float = 1.0
-    signature_weight: float = 0.3
+    signature_weight: float = 0.2
     symmetric: bool = True
     geometric: bool = False
     geometric_top: int = 5
@@ -125,8 +126,9 @@ class Similarity:
         return self.first_pass_ms + self.second_pass_ms
 
 
-def default_weights(params: FeatureParams = FeatureParams()) -> FloatArray:
+def default_weights(params: FeatureParams | None = None) -> FloatArray:
     """The documented default signature weights, ``(T,) float64`` summing to 1."""
+    params = params or FeatureParams()
     w = np.asarray(DEFAULT_WEIGHTS, np.float64)
     if len(w) != len(signature_blocks(params)):
         w = np.full(len(signature_blocks(params)), 1.0 / len(signature_blocks(params)))
@@ -154,9 +156,7 @@ def block_distances(
     ``(n, S)`` signatures (a plain reference implementation, used by learning and tests)."""
     diff = signatures.astype(np.float64) - query.astype(np.float64)[None, :]
     sq = diff * diff
-    return np.stack(
-        [sq[:, a:b].sum(axis=1) for a, b in zip(bounds[:-1], bounds[1:], strict=True)], 1
-    )
+    return np.stack([sq[:, a:b].sum(axis=1) for a, b in itertools.pairwise(bounds)], 1)
 
 
 class TourIndex:
@@ -186,6 +186,7 @@ class TourIndex:
         self._nkp = np.zeros(0, np.int16)
         self._state = np.zeros(0, np.int64)
         self._order: IntArray | None = None  # images sorted by state (lazy)
+        self._sorted = True  # states already non-decreasing in insertion order
         self._seg_starts = np.zeros(0, np.int64)
         self._seg_states = np.zeros(0, np.int64)
         self._weights = (
@@ -316,7 +317,8 @@ class TourIndex:
     def _segments(self) -> None:
         """Images grouped by state: a stable order and the segment starts (cached)."""
         st = self._state[: self._n]
-        if self._n and np.all(st[1:] >= st[:-1]):
+        self._sorted = bool(np.all(st[1:] >= st[:-1]))
+        if self._sorted:
             order = np.arange(self._n, dtype=np.int64)
         else:
             order = np.argsort(st, kind="stable").astype(np.int64)
@@ -365,7 +367,7 @@ class TourIndex:
             self._segments()
         assert self._order is not None
         order = self._order
-        identity = len(order) == 0 or (order[0] == 0 and order[-1] == len(order) - 1)
+        identity = self._sorted
         ds = d if identity else d[order]
         mins = np.minimum.reduceat(ds, self._seg_starts)
         counts = np.diff(np.r_[self._seg_starts, len(ds)])
@@ -437,10 +439,10 @@ class TourIndex:
 
     def _to_distance(self, x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
         """Map values of :meth:`_corner_distances` (after a min) to distances."""
-        x = np.asarray(x, np.float64)
+        y: npt.NDArray[np.float64] = np.asarray(x, np.float64)
         if self.params.features.descriptor == "grad36":
-            return np.sqrt(np.maximum(x, 0.0))
-        return x
+            return np.asarray(np.sqrt(np.maximum(y, 0.0)), np.float64)
+        return y
 
     def _geometric_errors(
         self, query: ImageFeatures, candidates: IntArray, dist: npt.NDArray[np.float32] | None

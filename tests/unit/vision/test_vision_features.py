@@ -1,0 +1,100 @@
+"""Feature extraction and the persisted blob."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from vision_testkit import scene
+
+from server.vision import FeatureParams, ImageFeatures, extract
+from server.vision.features import signature_blocks, signature_length
+
+
+def test_extract_shapes_and_dtypes() -> None:
+    f = extract(scene(1))
+    assert f.keypoints.dtype == np.float32 and f.keypoints.shape == (100, 2)
+    assert f.descriptors.dtype == np.uint8 and f.descriptors.shape == (100, 36)
+    assert f.signature.dtype == np.float32 and f.signature.shape == (signature_length(),)
+    assert f.size == (320, 240)
+    assert np.all((f.keypoints >= 0) & (f.keypoints < [320, 240]))
+
+
+def test_signature_blocks_have_unit_norm() -> None:
+    f = extract(scene(2))
+    start = 0
+    for name, n in signature_blocks():
+        block = f.signature[start : start + n]
+        start += n
+        assert np.linalg.norm(block) == pytest.approx(1.0, abs=1e-4), name
+
+
+@pytest.mark.parametrize("shape", [(480, 640, 3), (32, 64, 3), (120, 160), (241, 333, 3)])
+def test_any_size_grey_or_colour(shape: tuple[int, ...]) -> None:
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, size=shape, dtype=np.uint8)
+    f = extract(img)
+    assert f.signature.shape == (signature_length(),)
+    assert f.n_keypoints <= 100
+
+
+def test_fifty_features_option_and_orb() -> None:
+    f50 = extract(scene(3), FeatureParams(n_features=50))
+    assert f50.n_keypoints == 50
+    orb = extract(scene(3), FeatureParams(descriptor="orb"))
+    assert orb.descriptor == "orb" and orb.descriptors.shape[1] == 32
+    assert len(orb.signature) == signature_length(FeatureParams(descriptor="orb"))
+
+
+def test_blank_image_has_no_corners_but_a_signature() -> None:
+    f = extract(np.full((240, 320, 3), 128, np.uint8))
+    assert f.n_keypoints == 0 and f.descriptors.shape == (0, 36)
+    assert np.all(np.isfinite(f.signature))
+
+
+def test_rejects_bad_input_with_a_helpful_message() -> None:
+    with pytest.raises(ValueError, match="uint8"):
+        extract(np.zeros((10, 10), np.float32))
+    with pytest.raises(ValueError, match="descriptor"):
+        FeatureParams(descriptor="sift")  # type: ignore[arg-type]
+
+
+def test_round_trip_of_real_features() -> None:
+    f = extract(scene(4))
+    g = ImageFeatures.from_bytes(f.to_bytes())
+    assert g == f
+    assert len(f.to_bytes()) < 6000
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    k=st.integers(0, 100),
+    d=st.sampled_from([32, 36]),
+    s=st.integers(1, 600),
+    seed=st.integers(0, 2**31),
+)
+def test_round_trip_property(k: int, d: int, s: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    f = ImageFeatures(
+        keypoints=rng.uniform(0, 320, size=(k, 2)).astype(np.float32),
+        descriptors=rng.integers(0, 256, size=(k, d), dtype=np.uint8),
+        signature=rng.normal(size=s).astype(np.float32),
+        descriptor="orb" if d == 32 else "grad36",
+        size=(320, 240),
+    )
+    assert ImageFeatures.from_bytes(f.to_bytes()) == f
+
+
+def test_from_bytes_rejects_foreign_or_corrupt_blobs() -> None:
+    blob = extract(scene(5)).to_bytes()
+    with pytest.raises(ValueError, match="magic"):
+        ImageFeatures.from_bytes(b"XXXX" + blob[4:])
+    with pytest.raises(ValueError, match="corrupt"):
+        ImageFeatures.from_bytes(blob[:-3])
+    with pytest.raises(ValueError, match="version"):
+        ImageFeatures.from_bytes(blob[:4] + b"\x63\x00" + blob[6:])
+
+
+def test_extraction_is_deterministic() -> None:
+    assert extract(scene(6)) == extract(scene(6))
