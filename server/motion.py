@@ -45,6 +45,9 @@ class MotionParams:
       edge when the frame's similarity to the edge's departure image is at least the former
       and the homing offset to it at most the latter (about 5 degrees); the robot then drives
       onto the edge.
+    * ``toward_matches`` (8) and ``toward_offset`` (0.25): while spinning, the turn slows and
+      aims at the sought view only when its homing estimate rests on at least this many matches
+      and is at most this far off (weaker estimates flip sign from frame to frame).
     * ``lost_similarity`` (0.25) and ``lost_steps`` (5): a robot driving onto an edge gives up
       and spins again after this many frames whose best match on the edge is below the former.
     * ``find_turns`` (1.25) and ``unstick_s`` (4 s): when RotateAndFindEdge has turned this many
@@ -67,6 +70,8 @@ class MotionParams:
     ttl_s: float = 0.6
     found_similarity: float = 0.5
     found_offset: float = 0.06
+    toward_matches: int = 8
+    toward_offset: float = 0.25
     lost_similarity: float = 0.25
     lost_steps: int = 5
     find_turns: float = 1.25

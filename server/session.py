@@ -45,10 +45,11 @@ class NavigationParams:
     """Everything that tunes navigation, with documented defaults.
 
     * ``arrive_mass`` (0.6) and ``arrive_steps`` (3): the task is "arrived" once, on this many
-      consecutive frames, the goal location holds at least this belief *and* the tracker says it
-      is localised there (its conservative flag, which needs the recent images to agree with
-      the prediction: a robot carried away right after a task never "arrives" on a stale
-      belief).
+      consecutive frames, at least this belief is *at the goal* (the goal location plus the
+      last images of the edges ending there, which were taken at the place) and the recent
+      images agree with the prediction (the tracker's evidence ratio is at least
+      ``TrackerParams.localised_evidence``), and never before ``arrive_min_steps`` frames of
+      the task: a robot carried away right after a task does not "arrive" on a stale belief.
     * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
     * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
     * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
@@ -59,6 +60,7 @@ class NavigationParams:
 
     arrive_mass: float = 0.6
     arrive_steps: int = 3
+    arrive_min_steps: int = 5
     max_task_s: float = 300.0
     lost_steps: int = 200
     frame_timeout_s: float = 5.0
@@ -104,6 +106,12 @@ class TourRuntime:
         )
         # for every edge image, the index of the first image at or after it that moves
         self._moving = tuple(_next_moving(e.v, e.w) for e in graph.edges)
+        # fine states physically at each location: itself and the exit zones of edges into it
+        at: list[list[int]] = [[k] for k in range(graph.n_locations)]
+        for j, e in enumerate(graph.edges):
+            end = graph.n_locations + int(graph.edge_offsets[j + 1])
+            at[e.target].extend(range(end - int(self.model.exit_len[j]), end))
+        self.at_location = tuple(np.asarray(a, dtype=np.int64) for a in at)
 
     def moving_from(self, edge: int, k: int) -> int | None:
         """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
@@ -351,8 +359,9 @@ class RobotSession:
         drive onto the edge from there (reported as Navigate, so the belief follows onto it)
         and keep going while the frames still match the edge.
 
-        From a location the sought images are the edge's start (up to a little past where the
-        taught robot began to move); turning back on an edge, anywhere along the reverse edge.
+        From a location the sought images are those around where the taught robot began to move
+        forward (not the turn on the spot before it: the spin itself finds the heading);
+        turning back on an edge, anywhere along the reverse edge.
         """
         rt = self.runtime
         mp = self.params.motion
@@ -371,10 +380,13 @@ class RobotSession:
                 v, w, target = self._follow(edge, k + 1, features)
                 return v, w, target, Action.navigate(edge)
         self.leaving = None
-        hi = rt.departure[edge] + 4 if at_location else e.n_images - 1
-        window = [rt.edge_image(edge, j) for j in range(0, min(hi, e.n_images - 1) + 1)]
-        best = int(np.argmax(similarity.image[window]))
-        target = window[best]
+        last = e.n_images - 1
+        lo, hi = (
+            (max(0, rt.departure[edge] - 1), rt.departure[edge] + 4) if at_location else (0, last)
+        )
+        window = [rt.edge_image(edge, j) for j in range(lo, min(hi, last) + 1)]
+        best = lo + int(np.argmax(similarity.image[window]))
+        target = rt.edge_image(edge, best)
         view = float(similarity.image[target])
         homing = homing_offset(features, rt.features[target])
         if homing is not None and view >= mp.found_similarity:
@@ -382,8 +394,9 @@ class RobotSession:
                 self.leaving = (edge, best, 0)
                 v, w, target = self._follow(edge, best + 1, features)
                 return v, w, target, Action.navigate(edge)
-            v, w = rotate_command(mp, toward=float(homing.offset))
-            return v, w, target, Action.rotate(edge)
+            if homing.n_matches >= mp.toward_matches and abs(homing.offset) <= mp.toward_offset:
+                v, w = rotate_command(mp, toward=float(homing.offset))
+                return v, w, target, Action.rotate(edge)
         v, w = rotate_command(mp)
         return v, w, target, Action.rotate(edge)
 
@@ -397,9 +410,10 @@ class RobotSession:
     ) -> None:
         p = self.params
         task.steps += 1
-        goal_mass = float(summary.state[task.goal])
-        there = summary.localised and summary.localised_state == task.goal
-        task.arrive_streak = task.arrive_streak + 1 if there and goal_mass >= p.arrive_mass else 0
+        at_goal = float(summary.belief[self.runtime.at_location[task.goal]].sum())
+        agrees = summary.evidence >= p.tracker.localised_evidence
+        there = at_goal >= p.arrive_mass and agrees and task.steps >= p.arrive_min_steps
+        task.arrive_streak = task.arrive_streak + 1 if there else 0
         explore = decision.action.kind == ActionKind.EXPLORE
         task.explore_streak = task.explore_streak + 1 if explore else 0
         if task.arrive_streak >= p.arrive_steps:
