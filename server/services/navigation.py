@@ -117,7 +117,9 @@ class NavigationService:
         if graph.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
         rt = TourRuntime(graph, self._features(graph), self.params, version=version)
-        rt.index.set_weights(self._weights(tour_id, rt))
+        learned = self._weights(tour_id, rt)
+        chosen = self.params.signature_weights
+        rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
         return rt
 
     def _features(self, graph: TourGraph) -> list[ImageFeatures]:
