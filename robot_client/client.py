@@ -141,9 +141,11 @@ class TeachRepeatClient:
         v: float = 0.0,
         w: float = 0.0,
         depth: Sequence[float] | None = None,
+        timeout: float | None = None,
     ) -> schemas.FrameResult | schemas.NavigationFrameResult:
         """Send a frame: appended while teaching, answered with a motion command while
-        navigating (a :class:`~server.schemas.NavigationFrameResult`)."""
+        navigating (a :class:`~server.schemas.NavigationFrameResult`). ``timeout`` (s)
+        overrides the client's for this request."""
         params: dict[str, Any] = _meta(timestamp, v, w)
         if depth is not None:
             params["depth"] = [round(float(r), 3) for r in depth]
@@ -153,6 +155,7 @@ class TeachRepeatClient:
             params=params,
             content=jpeg,
             headers={"Content-Type": "image/jpeg"},
+            **({} if timeout is None else {"timeout": timeout}),
         )
         return _FRAME_RESULT.validate_json(response.content)
 

@@ -70,8 +70,15 @@ def drive(
         v, w = motors.odometry()
         profile = None if depth is None else [float(r) for r in depth.profile()]
         try:
+            # while a command is in force, wait for the answer no longer than it stays valid
             result = client.upload_frame(
-                robot, buf.tobytes(), timestamp=clock.now(), v=v, w=w, depth=profile
+                robot,
+                buf.tobytes(),
+                timestamp=clock.now(),
+                v=v,
+                w=w,
+                depth=profile,
+                timeout=None if last is None else last.command.ttl_s,
             )
         except httpx.TransportError:
             motors.stop()  # never drive blind while the server is away

@@ -19,6 +19,7 @@ from server.config import Settings
 from server.errors import DomainError
 from server.imaging import ImageLimits
 from server.services.container import Services
+from server.session import NavigationParams
 from server.storage.repo import Repo
 
 
@@ -44,17 +45,22 @@ async def _sweep_forever(services: Services, period_s: float = 1.0) -> None:
         await run_in_threadpool(services.navigation.sweep)
 
 
-def create_app(settings: Settings) -> FastAPI:
-    """The FastAPI application for ``settings`` (database, admin token, limits)."""
+def create_app(settings: Settings, *, navigation: NavigationParams | None = None) -> FastAPI:
+    """The FastAPI application for ``settings`` (database, admin token, limits);
+    ``navigation`` tunes the navigation core (defaults documented in NavigationParams)."""
     if settings.admin_token is None:
         raise ValueError("settings.admin_token is required (serve generates one when unset)")
     limits = ImageLimits(
         max_bytes=settings.max_image_bytes,
         max_pixels=settings.max_image_pixels,
         max_side=settings.max_image_side,
+        min_side=settings.min_image_side,
     )
     services = Services.build(
-        Repo(settings.db), admin_token=settings.admin_token.get_secret_value(), limits=limits
+        Repo(settings.db),
+        admin_token=settings.admin_token.get_secret_value(),
+        limits=limits,
+        navigation=navigation,
     )
 
     @asynccontextmanager

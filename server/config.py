@@ -41,4 +41,5 @@ class Settings(BaseSettings):
         default=4096 * 3072, gt=0, description="Largest accepted width x height, pixels."
     )
     max_image_side: int = Field(default=8192, gt=0, description="Largest accepted width or height.")
+    min_image_side: int = Field(default=16, gt=0, description="Smallest accepted width or height.")
     max_location_name: int = Field(default=64, gt=0, description="Longest location name, chars.")

@@ -26,6 +26,8 @@ class ImageLimits:
     """Largest width x height."""
     max_side: int = 8192
     """Largest width or height, pixels."""
+    min_side: int = 16
+    """Smallest width or height, pixels (features need room)."""
 
 
 def jpeg_size(data: bytes) -> tuple[int, int]:
@@ -87,6 +89,11 @@ def decode_jpeg(data: bytes, limits: ImageLimits) -> tuple[npt.NDArray[np.uint8]
         raise TooLarge(
             f"the image claims {width}x{height} pixels; the limit is {limits.max_pixels} pixels "
             f"and {limits.max_side} per side. Resize the frame before sending it"
+        )
+    if width < limits.min_side or height < limits.min_side:
+        raise Invalid(
+            f"the image is {width}x{height} pixels; send frames of at least "
+            f"{limits.min_side} pixels per side"
         )
     if not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
         raise Invalid("the JPEG is truncated (no end-of-image marker); send the complete file")

@@ -28,6 +28,9 @@ LocationName = Annotated[
 ]
 
 
+DbId = Annotated[int, Field(ge=1, le=2**63 - 1, description="A database id.")]
+
+
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -109,7 +112,7 @@ class RobotPublic(_Model):
 
 
 class TeachStart(_Model):
-    tour: int = Field(description="Id of the tour to teach (create it with POST /tours).")
+    tour: DbId = Field(description="Id of the tour to teach (create it with POST /tours).")
 
 
 class LocationMark(_Model):
@@ -197,7 +200,7 @@ TaskStateName = Literal["underway", "arrived", "failed", "cancelled"]
 
 class GotoRequest(_Model):
     location: LocationName
-    tour: int | None = Field(
+    tour: DbId | None = Field(
         default=None,
         description="Tour to navigate in; defaults to the tour the robot last used.",
     )

@@ -134,7 +134,7 @@ class Repo:
                 yield
             except BaseException:
                 self._depth -= 1
-                if outer:
+                if outer and self.db.conn.in_transaction:  # SQLITE_FULL already rolled back
                     self.db.conn.execute("ROLLBACK")
                 raise
             self._depth -= 1
@@ -146,7 +146,7 @@ class Repo:
             with _guard():
                 self.db.conn.execute(sql)
         except BaseException:
-            if sql == "COMMIT":
+            if sql == "COMMIT" and self.db.conn.in_transaction:
                 self.db.conn.execute("ROLLBACK")
             raise
 
@@ -370,7 +370,7 @@ class Repo:
 
     def move_pending_to_edge(self, robot: str, edge_id: int) -> int:
         """Hand the robot's open path to ``edge_id``, keeping the order; returns the count."""
-        with self._lock:
+        with self._lock, _guard():
             cur = self.db.conn.execute(
                 "UPDATE images SET edge_id = ?, pending_robot = NULL WHERE pending_robot = ?",
                 (edge_id, robot),
@@ -378,7 +378,7 @@ class Repo:
             return int(cur.rowcount)
 
     def discard_pending(self, robot: str) -> int:
-        with self._lock:
+        with self._lock, _guard():
             cur = self.db.conn.execute("DELETE FROM images WHERE pending_robot = ?", (robot,))
             return int(cur.rowcount)
 
@@ -396,7 +396,7 @@ class Repo:
         return out
 
     def set_features(self, items: Sequence[tuple[int, bytes]]) -> None:
-        with self.transaction(), self._lock:
+        with self.transaction(), self._lock, _guard():
             self.db.conn.executemany(
                 "UPDATE images SET features = ? WHERE id = ?", [(b, i) for i, b in items]
             )

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from typing import Annotated
+
+from fastapi import APIRouter, Path, status
 
 from server import schemas
 from server.api.deps import PrincipalDep, ServicesDep
 
 router = APIRouter(prefix="/tours", tags=["tours"])
+PathId = Annotated[int, Path(ge=1, le=2**63 - 1, description="Tour id.")]
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=schemas.TourSummary)
@@ -24,6 +27,6 @@ def list_tours(services: ServicesDep, _: PrincipalDep) -> list[schemas.TourSumma
 
 
 @router.get("/{tour_id}", response_model=schemas.TourGraphPublic)
-def get_tour(tour_id: int, services: ServicesDep, _: PrincipalDep) -> schemas.TourGraphPublic:
+def get_tour(tour_id: PathId, services: ServicesDep, _: PrincipalDep) -> schemas.TourGraphPublic:
     """The tour's graph: locations with their images, edges with counts and durations."""
     return services.tours.graph(tour_id)
