@@ -62,12 +62,13 @@ class NavigationParams:
       task failed and must re-localise.
     * ``max_dt_s`` (1.0 s): a longer gap between frames is treated as this for prediction.
     * ``history`` (200): steps kept per robot for the dashboard and debugging.
-    * ``signature_weights`` (``ROBUST_WEIGHTS``): the engine's first-pass block weights used for
-      navigation; ``None`` = the weights learned for the tour. Weights learned from a single
-      teaching traversal cannot see a change of light and put ~0.75 on the colour histogram;
-      measured over 120 random poses of the simulated home, the top state under dimmer, warmer
-      light agreed with the unchanged one for 0.33 of them with learned weights and 0.78 with
-      these (0.89 vs 0.87 with moved furniture), so navigation uses these by default.
+    * ``signature_weights`` (None): the engine's first-pass block weights used for navigation;
+      ``None`` = the weights learned for the tour. Learned from a single teaching traversal they
+      cannot see a change of light (~0.75 on the colour histogram): the simulated lighting
+      condition failed 0/10. ``ROBUST_WEIGHTS`` hold up under light changes (6/10, and the top
+      state under changed light agreed with the unchanged one for 0.78 of 120 random poses vs
+      0.33) but make places less distinct in unchanged light (7/20 with 7 wrong arrivals vs
+      15/20 with 2), so they are an option, not the default.
     """
 
     arrive_mass: float = 0.6
@@ -78,7 +79,7 @@ class NavigationParams:
     frame_timeout_s: float = 5.0
     max_dt_s: float = 1.0
     history: int = 200
-    signature_weights: tuple[float, ...] | None = ROBUST_WEIGHTS
+    signature_weights: tuple[float, ...] | None = None
     features: FeatureParams = field(default_factory=FeatureParams)
     engine: EngineParams = field(default_factory=EngineParams)
     transitions: TransitionParams = field(default_factory=TransitionParams)

@@ -10,7 +10,7 @@ from server.errors import Invalid, TooLarge, UnsupportedMedia
 from server.imaging import ImageLimits, decode_jpeg, encode_jpeg, jpeg_size
 
 
-@pytest.mark.parametrize(("w", "h"), [(1, 1), (64, 48), (320, 240), (641, 479)])
+@pytest.mark.parametrize(("w", "h"), [(16, 16), (64, 48), (320, 240), (641, 479)])
 def test_header_size_matches_the_decoded_size(w: int, h: int) -> None:
     data = make_jpeg(0, w, h)
     assert jpeg_size(data) == (w, h)
