@@ -425,8 +425,8 @@ class Tracker:
         if q > 0 and math.isfinite(dt) and dt > 0:
             step = math.log1p(q)
             dt_q = math.exp(round(math.log(dt) / step) * step)
-            if math.isfinite(v) and v != 0:
-                dist = abs(v) * dt
+            dist = abs(v) * dt if math.isfinite(v) else 0.0
+            if dist > 0:  # (a tiny v * dt can underflow to 0)
                 v = math.exp(round(math.log(dist) / step) * step) / dt_q
             dt = dt_q
         return self.model.expected_advance(v=v, dt=dt)
