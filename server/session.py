@@ -68,7 +68,7 @@ class NavigationParams:
       condition failed 0/10. ``ROBUST_WEIGHTS`` hold up under light changes (6/10, and the top
       state under changed light agreed with the unchanged one for 0.78 of 120 random poses vs
       0.33) but make places less distinct in unchanged light (7/20 with 7 wrong arrivals vs
-      15/20 with 2), so they are an option, not the default.
+      15/20 with 1-2), so they are an option, not the default.
     """
 
     arrive_mass: float = 0.6
