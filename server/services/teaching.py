@@ -52,8 +52,7 @@ class TeachingService:
             if row.current_location_id is None
             else self.repo.location_name(row.current_location_id)
         )
-        counts = {t.id: (nl, ne) for t, nl, ne, _ in self.repo.tours()}
-        n_locations, n_edges = counts.get(row.tour_id, (0, 0))
+        n_locations, n_edges = self.repo.tour_counts(row.tour_id)
         return schemas.TeachingState(
             tour=tour.id,
             tour_name=tour.name,
@@ -98,10 +97,26 @@ class TeachingService:
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.FrameResult:
         """Append one frame to the open path."""
-        self._ready_for_frames(self._teaching(robot, "upload frames"), robot)
-        _, width, height = decode_jpeg(data, self.limits)
+        _, stored, pending = self._store(robot, data, meta, spin=False)
+        return schemas.FrameResult(mode="teaching", image=stored, open_path_images=pending)
+
+    def spin_image(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.ImageStored:
+        """Add one image taken while spinning at the current place."""
+        row, stored, _ = self._store(robot, data, meta, spin=True)
+        self.on_change(row.tour_id)
+        return stored
+
+    def _store(
+        self, robot: str, data: bytes, meta: schemas.FrameMeta, *, spin: bool
+    ) -> tuple[TeachingRow, schemas.ImageStored, int]:
+        """Check and store one image on the open path (``spin`` False) or as a spin image of the
+        current place; one transaction. Returns the teaching row, the stored image and the
+        number of images now on the open path."""
+        doing = "upload spin images" if spin else "upload frames"
+        self._ready_for_frames(self._teaching(robot, doing), robot)
+        _, width, height = decode_jpeg(data, self.limits)  # outside the transaction: CPU only
         with self.repo.transaction():
-            row = self._teaching(robot, "upload frames")
+            row = self._teaching(robot, doing)
             self._ready_for_frames(row, robot)
             self._check_timestamp(row, meta.timestamp)
             image_id = self.repo.add_image(
@@ -112,17 +127,14 @@ class TeachingService:
                 timestamp=meta.timestamp,
                 v=meta.v,
                 w=meta.w,
-                pending_robot=robot,
+                location_id=row.current_location_id if spin else None,
+                pending_robot=None if spin else robot,
             )
             self.repo.set_teaching(
                 robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp
             )
             pending = self.repo.pending_count(robot)
-        return schemas.FrameResult(
-            mode="teaching",
-            image=schemas.ImageStored(image_id=image_id, width=width, height=height),
-            open_path_images=pending,
-        )
+        return row, schemas.ImageStored(image_id=image_id, width=width, height=height), pending
 
     def _ready_for_frames(self, row: TeachingRow, robot: str) -> None:
         if row.current_location_id is None:
@@ -130,31 +142,6 @@ class TeachingService:
                 "no place has been marked yet, so a path has nowhere to start: name the "
                 f"starting place first with POST /robots/{robot}/teach/locations"
             )
-
-    def spin_image(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.ImageStored:
-        """Add one image taken while spinning at the current place."""
-        row = self._teaching(robot, "upload spin images")
-        self._ready_for_frames(row, robot)
-        _, width, height = decode_jpeg(data, self.limits)
-        with self.repo.transaction():
-            row = self._teaching(robot, "upload spin images")
-            self._ready_for_frames(row, robot)
-            self._check_timestamp(row, meta.timestamp)
-            image_id = self.repo.add_image(
-                tour_id=row.tour_id,
-                jpeg=data,
-                width=width,
-                height=height,
-                timestamp=meta.timestamp,
-                v=meta.v,
-                w=meta.w,
-                location_id=row.current_location_id,
-            )
-            self.repo.set_teaching(
-                robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp
-            )
-        self.on_change(row.tour_id)
-        return schemas.ImageStored(image_id=image_id, width=width, height=height)
 
     def mark(self, robot: str, body: schemas.LocationMark) -> schemas.MarkResult:
         """ "This is the kitchen": close the open path into the named place (new or existing)."""

@@ -218,6 +218,15 @@ class Repo:
         )
         return [(TourRow(r[0], r[1], r[2]), r[3], r[4], r[5]) for r in rows]
 
+    def tour_counts(self, tour_id: int) -> tuple[int, int]:
+        """Numbers of locations and of edges of one tour."""
+        row = self._q(
+            "SELECT (SELECT COUNT(*) FROM locations WHERE tour_id = ?), "
+            "(SELECT COUNT(*) FROM edges WHERE tour_id = ?)",
+            (tour_id, tour_id),
+        )[0]
+        return int(row[0]), int(row[1])
+
     def tour_weights(self, tour_id: int) -> tuple[bytes | None, int | None]:
         rows = self._q("SELECT weights, weights_images FROM tours WHERE id = ?", (tour_id,))
         if not rows:
