@@ -10,8 +10,11 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +30,14 @@ class ServerProcess:
     url: str
     db: Path
     dashboard_url: str | None = None
+    admin_token: str = ADMIN
+
+    def register_robot(self, name: str) -> str:
+        """Register robot ``name`` with the admin token; its bearer token."""
+        from robot_client.client import TeachRepeatClient
+
+        with TeachRepeatClient(self.url, self.admin_token) as admin:
+            return admin.register_robot(name).token
 
     def kill(self) -> None:
         """SIGKILL: no clean shutdown, as in a power cut."""
@@ -100,8 +111,22 @@ def start_server(
     while time.monotonic() < deadline:
         try:
             if httpx.get(f"{url}/health", timeout=1).status_code == 200:
-                return ServerProcess(proc, url, db, dashboard_url)
+                return ServerProcess(proc, url, db, dashboard_url, admin_token)
         except httpx.TransportError:
             time.sleep(0.05)
     proc.kill()
     raise RuntimeError("server never answered /health")
+
+
+@contextmanager
+def scratch_server(
+    name: str = "scratch.sqlite", *, extra_env: dict[str, str] | None = None
+) -> Iterator[ServerProcess]:
+    """A real server on a fresh database in a temporary folder, stopped and removed on exit
+    (for benchmarks that measure a clean server)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        server = start_server(Path(tmp) / name, extra_env=extra_env)
+        try:
+            yield server
+        finally:
+            server.stop()

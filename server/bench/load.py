@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -198,56 +197,50 @@ def one_run(
     """Start a fresh server, teach, drive ``robots`` clients; the figures of this run."""
     from robot_client.client import TeachRepeatClient
     from robot_client.teach import teach_folder
-    from server.process import ADMIN, start_server
+    from server.process import ADMIN, scratch_server
 
-    with tempfile.TemporaryDirectory() as tmp:
-        server = start_server(Path(tmp) / "load.sqlite", extra_env=server_env)
-        try:
-            pid = server.proc.pid
-            with TeachRepeatClient(server.url, ADMIN) as admin:
-                teacher = admin.register_robot("teacher").token
-                with TeachRepeatClient(server.url, teacher) as client:
-                    teach_folder(client, tour="corridor", frames=ref, marks=MARKS, progress=False)
-                tokens = {
-                    f"r{i:03d}": admin.register_robot(f"r{i:03d}").token for i in range(robots)
-                }
-                for name in tokens:
-                    admin.goto(name, goal)
-            rss_idle = rss_mb(pid)
-            logs = {name: RobotLog() for name in tokens}
-            start = time.monotonic()
-            measure_from = start + warmup_s
-            until = measure_from + seconds
-            sampler = RssSampler(pid, rss_every_s)
-            sampler.start()
-            threads = [
-                threading.Thread(
-                    target=robot_loop,
-                    args=(server.url, token, name),
-                    kwargs={
-                        "frames": frames,
-                        "rate_hz": rate_hz,
-                        "phase_s": i / (rate_hz * robots),
-                        "goal": goal,
-                        "until": until,
-                        "log": logs[name],
-                    },
-                    name=name,
-                    daemon=True,
-                )
-                for i, (name, token) in enumerate(tokens.items())
-            ]
-            for t in threads:
-                t.start()
-            time.sleep(max(0.0, measure_from - time.monotonic()))
-            cpu0, wall0 = cpu_seconds(pid), time.monotonic()
-            for t in threads:
-                t.join(timeout=seconds + warmup_s + 60)
-            cpu1, wall1 = cpu_seconds(pid), time.monotonic()
-            sampler.stop()
-            alive = server.proc.poll() is None
-        finally:
-            server.stop()
+    with scratch_server("load.sqlite", extra_env=server_env) as server:
+        pid = server.proc.pid
+        with TeachRepeatClient(server.url, ADMIN) as admin:
+            teacher = admin.register_robot("teacher").token
+            with TeachRepeatClient(server.url, teacher) as client:
+                teach_folder(client, tour="corridor", frames=ref, marks=MARKS, progress=False)
+            tokens = {f"r{i:03d}": admin.register_robot(f"r{i:03d}").token for i in range(robots)}
+            for name in tokens:
+                admin.goto(name, goal)
+        rss_idle = rss_mb(pid)
+        logs = {name: RobotLog() for name in tokens}
+        start = time.monotonic()
+        measure_from = start + warmup_s
+        until = measure_from + seconds
+        sampler = RssSampler(pid, rss_every_s)
+        sampler.start()
+        threads = [
+            threading.Thread(
+                target=robot_loop,
+                args=(server.url, token, name),
+                kwargs={
+                    "frames": frames,
+                    "rate_hz": rate_hz,
+                    "phase_s": i / (rate_hz * robots),
+                    "goal": goal,
+                    "until": until,
+                    "log": logs[name],
+                },
+                name=name,
+                daemon=True,
+            )
+            for i, (name, token) in enumerate(tokens.items())
+        ]
+        for t in threads:
+            t.start()
+        time.sleep(max(0.0, measure_from - time.monotonic()))
+        cpu0, wall0 = cpu_seconds(pid), time.monotonic()
+        for t in threads:
+            t.join(timeout=seconds + warmup_s + 60)
+        cpu1, wall1 = cpu_seconds(pid), time.monotonic()
+        sampler.stop()
+        alive = server.proc.poll() is None
     measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
     errors = [e for log in logs.values() for e in log.errors]
     after = [mb for (t, mb) in sampler.samples if t >= warmup_s]

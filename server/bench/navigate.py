@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import random
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -53,45 +52,41 @@ def run(args: argparse.Namespace) -> int:
     from robot_client.guide import teach_route
     from robot_client.sim import SimulatedRobot, SimWorld, load_plan
     from robot_client.trial import run_trial
-    from server.process import ADMIN, start_server
+    from server.process import scratch_server
 
     plan = load_plan()
     rng = random.Random(args.seed)
     np_rng = np.random.default_rng(args.seed)
     rows: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory() as tmp:
-        server = start_server(Path(tmp) / "bench.sqlite")
-        try:
-            with TeachRepeatClient(server.url, ADMIN) as admin:
-                token = admin.register_robot("bench").token
-            with TeachRepeatClient(server.url, token) as client:
-                with SimWorld(plan, condition="same", seed=args.seed) as world:
-                    robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
-                    graph = teach_route(client, "bench", robot, plan, tour="home")
-                print(f"taught {len(graph.locations)} places, {len(graph.edges)} edges")
-                names = [p.name for p in plan.places]
-                with SimWorld(plan, condition=args.condition, seed=args.seed) as world:
-                    robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
-                    for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
-                        robot.teleport(_start_pose(world, plan, np_rng, trial))
-                        goal = rng.choice(names)
-                        result = run_trial(
-                            client,
-                            "bench",
-                            robot,
-                            plan,
-                            goal,
-                            tour=graph,
-                            max_steps=args.max_steps,
-                        )
-                        rows.append({"trial": trial, **result.row()})
-                        tqdm.write(
-                            f"{trial:3d} -> {goal:<12} {'ok' if result.success else result.state:9}"
-                            f" {result.distance_m:5.2f} m  {result.time_s:5.0f} s"
-                            f"  ratio {result.path_ratio:4.2f}  {result.reason or ''}"
-                        )
-        finally:
-            server.stop()
+    with (
+        scratch_server("bench.sqlite") as server,
+        TeachRepeatClient(server.url, server.register_robot("bench")) as client,
+    ):
+        with SimWorld(plan, condition="same", seed=args.seed) as world:
+            robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
+            graph = teach_route(client, "bench", robot, plan, tour="home")
+        print(f"taught {len(graph.locations)} places, {len(graph.edges)} edges")
+        names = [p.name for p in plan.places]
+        with SimWorld(plan, condition=args.condition, seed=args.seed) as world:
+            robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
+            for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
+                robot.teleport(_start_pose(world, plan, np_rng, trial))
+                goal = rng.choice(names)
+                result = run_trial(
+                    client,
+                    "bench",
+                    robot,
+                    plan,
+                    goal,
+                    tour=graph,
+                    max_steps=args.max_steps,
+                )
+                rows.append({"trial": trial, **result.row()})
+                tqdm.write(
+                    f"{trial:3d} -> {goal:<12} {'ok' if result.success else result.state:9}"
+                    f" {result.distance_m:5.2f} m  {result.time_s:5.0f} s"
+                    f"  ratio {result.path_ratio:4.2f}  {result.reason or ''}"
+                )
     successes = [r for r in rows if r["success"]]
     summary = {
         "condition": args.condition,

@@ -7,7 +7,6 @@ frames of ``corridor/ref`` (4 places) through the robot client, over loopback HT
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 
 from server.bench.common import default_data_dir, stats, write_json
@@ -22,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from robot_client.client import TeachRepeatClient
     from robot_client.teach import teach_folder
-    from server.process import ADMIN, start_server
+    from server.process import scratch_server
 
     frames = (args.data or default_data_dir()) / "corridor" / "ref"
     if not frames.is_dir():
@@ -31,17 +30,13 @@ def run(args: argparse.Namespace) -> int:
     marks = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
     rates: list[float] = []
     for k in range(args.runs):
-        with tempfile.TemporaryDirectory() as tmp:
-            server = start_server(Path(tmp) / "bench.sqlite")
-            try:
-                with TeachRepeatClient(server.url, ADMIN) as admin:
-                    token = admin.register_robot("bench").token
-                with TeachRepeatClient(server.url, token) as client:
-                    report = teach_folder(
-                        client, tour=f"corridor-{k}", frames=frames, marks=marks, progress=False
-                    )
-            finally:
-                server.stop()
+        with (
+            scratch_server("bench.sqlite") as server,
+            TeachRepeatClient(server.url, server.register_robot("bench")) as client,
+        ):
+            report = teach_folder(
+                client, tour=f"corridor-{k}", frames=frames, marks=marks, progress=False
+            )
         rates.append(report.frames_per_second)
         print(
             f"run {k + 1}: {report.uploaded} frames in {report.seconds:.3f} s = "
