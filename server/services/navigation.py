@@ -201,11 +201,14 @@ class NavigationService:
         return session
 
     def is_navigating(self, robot: str) -> bool:
-        s = self.session(robot)
-        return s is not None and s.task is not None and s.task.state == "underway"
-
-    def has_session(self, robot: str) -> bool:
-        return self.session(robot) is not None
+        """Whether the robot has a task underway (the persisted row answers for a robot with no
+        live session, without resuming it)."""
+        with self._lock:
+            live = self._sessions.get(robot)
+        if live is not None:
+            return live.task is not None and live.task.state == "underway"
+        row = self.repo.navigation(robot)
+        return row is not None and row.state == "underway"
 
     def _persist(self, session: RobotSession, *, belief: bool) -> None:
         task = session.task
