@@ -600,39 +600,31 @@ class BeliefModel:
         uniform: list[tuple[int, float]] = []
         mirror: list[tuple[int, float]] = []
         exit_p = 0.0
+
+        def send(targets: list[int], total: float) -> None:
+            """Split ``total`` evenly over edge ``targets``: onto a reverse edge near the mirrored
+            image, onto any other edge uniformly."""
+            for i in targets:
+                if i in revs:
+                    mirror.append((i, total / len(targets)))
+                else:
+                    uniform.append((L + i, total / len(targets)))
+
         kind = action.kind
         if kind is ActionKind.ROTATE_AND_FIND_EDGE:
             g = -1 if action.edge is None else action.edge
             related = list(revs) + list(sibs)
-            others = [i for i in related if i != g]
             if g in related:
-                if g in revs:
-                    mirror.append((g, p.rotate_edge_to_goal))
-                else:
-                    uniform.append((L + g, p.rotate_edge_to_goal))
-            if others:
-                share = p.rotate_edge_to_related / len(others)
-                for i in others:
-                    if i in revs:
-                        mirror.append((i, share))
-                    else:
-                        uniform.append((L + i, share))
+                send([g], p.rotate_edge_to_goal)
+            send([i for i in related if i != g], p.rotate_edge_to_related)
         elif kind is ActionKind.NAVIGATE:
             exit_p = p.navigate_exit
-            if sibs and p.navigate_edge_to_sibling > 0:
-                share = p.navigate_edge_to_sibling / len(sibs)
-                uniform.extend((L + i, share) for i in sibs)
+            if p.navigate_edge_to_sibling > 0:
+                send(list(sibs), p.navigate_edge_to_sibling)
         elif kind is ActionKind.EXPLORE:
             ends = [e.source, e.target] if e.source != e.target else [e.source]
             uniform.extend((k, p.explore_edge_to_endpoints / len(ends)) for k in ends)
-            related = list(revs) + list(sibs)
-            if related:
-                share = p.explore_edge_to_related / len(related)
-                for i in related:
-                    if i in revs:
-                        mirror.append((i, share))
-                    else:
-                        uniform.append((L + i, share))
+            send(list(revs) + list(sibs), p.explore_edge_to_related)
         return uniform, mirror, exit_p
 
     def _build_structure(self, action: Action) -> _Structure:
