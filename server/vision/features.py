@@ -7,7 +7,11 @@ per image so that a restart never re-extracts.
 Steps of :func:`extract`:
 
 1. **Normalise** the frame to the working size (default 320x240 px; INTER_AREA when shrinking,
-   INTER_LINEAR when enlarging). Every pixel coordinate in this module is at the working size.
+   INTER_LINEAR when enlarging), then (``colour_constancy``, on by default) scale each colour
+   channel so that its mean is ``colour_mean`` grey levels ("grey world"). A change of light
+   that multiplies each channel by a gain (dimmer, warmer, a different bulb) cancels out, so
+   the histogram and thumbnail compare the scene, not the lamp. Every pixel coordinate in this
+   module is at the working size.
 2. **Harris corners** (``cv2.goodFeaturesToTrack`` with the Harris response), strongest first,
    at most ``n_features`` (100 by default, chosen by the benchmark; 50 as in the paper is the
    faster option), away from the border.
@@ -56,7 +60,9 @@ SIGNATURE_BLOCKS: tuple[str, ...] = ("hist", "thumb", "desc_mean", "desc_var", "
 
 _MAGIC = b"TRVF"
 #: Version of the ``to_bytes`` layout; bump it when the layout changes.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: ``flags`` bit of :class:`ImageFeatures`: extracted with grey-world colour normalisation.
+FLAG_COLOUR_CONSTANCY = 1
 _HEADER = struct.Struct("<4sHBBHHHHH")
 
 
@@ -84,6 +90,11 @@ class FeatureParams:
         thumb_size: (columns, rows) of the colour thumbnail.
         patch_size: (columns, rows) of the patch-normalised grey thumbnail.
         patch_window: side of the local normalisation window, in thumbnail pixels (odd).
+        colour_constancy: scale each channel to mean ``colour_mean`` before anything else
+            (grey world). Measured in the simulated home (``teachrepeat bench sim-retrieval``):
+            under dimmer, warmer light, place recall@1 with learned weights 0.36 without it,
+            0.72 with it, and 0.71 -> 0.74 in unchanged light.
+        colour_mean: grey level (0-255) every channel's mean is scaled to.
     """
 
     width: int = 320
@@ -103,6 +114,8 @@ class FeatureParams:
     thumb_size: tuple[int, int] = (8, 6)
     patch_size: tuple[int, int] = (16, 12)
     patch_window: int = 5
+    colour_constancy: bool = True
+    colour_mean: float = 110.0
 
     def __post_init__(self) -> None:
         if self.descriptor not in DESCRIPTOR_KINDS:
@@ -119,11 +132,27 @@ class FeatureParams:
             raise ValueError("hist_bins must be even and 1 <= hist_coefficients <= hist_bins")
         if self.patch_window % 2 == 0:
             raise ValueError("patch_window must be odd")
+        if not 0.0 < self.colour_mean < 255.0:
+            raise ValueError("colour_mean must lie in (0, 255) grey levels")
 
     @property
     def descriptor_bytes(self) -> int:
         """Bytes per descriptor (D)."""
         return DESCRIPTOR_BYTES[self.descriptor]
+
+    @property
+    def flags(self) -> int:
+        """The :attr:`ImageFeatures.flags` that features extracted with these params carry."""
+        return FLAG_COLOUR_CONSTANCY if self.colour_constancy else 0
+
+    def matches(self, features: ImageFeatures) -> bool:
+        """True when ``features`` were extracted with settings compatible with these (same
+        descriptor, working size and colour normalisation), so they can be compared."""
+        return (
+            features.descriptor == self.descriptor
+            and tuple(features.size) == (self.width, self.height)
+            and features.flags == self.flags
+        )
 
 
 def signature_blocks(params: FeatureParams = FeatureParams()) -> tuple[tuple[str, int], ...]:
@@ -156,6 +185,8 @@ class ImageFeatures:
         signature: ``(S,) float32`` global signature, unit-norm blocks (:func:`signature_blocks`).
         descriptor: which descriptor produced ``descriptors``.
         size: working size ``(width, height)`` in pixels the keypoints refer to.
+        flags: how the image was normalised (:data:`FLAG_COLOUR_CONSTANCY`), see
+            :meth:`FeatureParams.matches`.
     """
 
     keypoints: npt.NDArray[np.float32]
@@ -163,6 +194,7 @@ class ImageFeatures:
     signature: npt.NDArray[np.float32]
     descriptor: DescriptorKind = "grad36"
     size: tuple[int, int] = field(default=(320, 240))
+    flags: int = 0
 
     def __post_init__(self) -> None:
         k = len(self.keypoints)
@@ -184,6 +216,7 @@ class ImageFeatures:
         return (
             self.descriptor == other.descriptor
             and tuple(self.size) == tuple(other.size)
+            and self.flags == other.flags
             and np.array_equal(self.keypoints, other.keypoints)
             and np.array_equal(self.descriptors, other.descriptors)
             and np.array_equal(self.signature, other.signature)
@@ -200,7 +233,7 @@ class ImageFeatures:
             _MAGIC,
             FORMAT_VERSION,
             kind,
-            0,
+            self.flags,
             self.n_keypoints,
             d,
             len(self.signature),
@@ -221,7 +254,7 @@ class ImageFeatures:
         """Inverse of :meth:`to_bytes`; ``ValueError`` on a blob of another format or version."""
         if len(data) < _HEADER.size:
             raise ValueError(f"feature blob too short ({len(data)} bytes); re-extract the image")
-        magic, version, kind, _, k, d, s, w, h = _HEADER.unpack_from(data, 0)
+        magic, version, kind, flags, k, d, s, w, h = _HEADER.unpack_from(data, 0)
         if magic != _MAGIC:
             raise ValueError("not an ImageFeatures blob (bad magic); re-extract the image")
         if version != FORMAT_VERSION:
@@ -244,6 +277,7 @@ class ImageFeatures:
             signature=sig.astype(np.float32),
             descriptor=DESCRIPTOR_KINDS[kind],
             size=(int(w), int(h)),
+            flags=int(flags),
         )
 
 
@@ -254,7 +288,8 @@ class ImageFeatures:
 def normalise(
     image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
 ) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
-    """Resize to the working size: ``(colour (H, W, 3) BGR uint8, grey (H, W) uint8)``."""
+    """Resize to the working size and (``params.colour_constancy``) apply grey-world colour
+    normalisation: ``(colour (H, W, 3) BGR uint8, grey (H, W) uint8)``."""
     img: npt.NDArray[Any] = np.asarray(image)
     if img.dtype != np.uint8:
         raise ValueError(f"expected a uint8 image, got {img.dtype}; convert it first")
@@ -271,8 +306,19 @@ def normalise(
         shrink = img.shape[1] >= params.width and img.shape[0] >= params.height
         interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
         img = cv2.resize(img, size, interpolation=interp)
+    if params.colour_constancy:
+        img = grey_world(img, params.colour_mean)
     grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     return np.ascontiguousarray(img, dtype=np.uint8), np.asarray(grey, np.uint8)
+
+
+def grey_world(image: npt.NDArray[np.uint8], mean: float = 110.0) -> npt.NDArray[np.uint8]:
+    """Scale each channel of an ``(H, W, 3) uint8`` image so its mean is ``mean`` grey levels
+    (saturating at 255). A channel that is black throughout stays black."""
+    means = np.asarray(cv2.mean(image)[:3], dtype=np.float64)
+    gains = np.where(means > 0.5, mean / np.maximum(means, 0.5), 1.0)
+    out = cv2.transform(image, np.diag(gains).astype(np.float32))
+    return np.ascontiguousarray(out, dtype=np.uint8)
 
 
 def _border_mask(params: FeatureParams, border: int) -> npt.NDArray[np.uint8]:
@@ -439,6 +485,7 @@ def extract(image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams(
         signature=signature,
         descriptor=params.descriptor,
         size=(params.width, params.height),
+        flags=params.flags,
     )
 
 

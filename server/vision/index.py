@@ -236,6 +236,7 @@ class TourIndex:
             signature=np.concatenate([blk[i] for blk in self._blocks]),
             descriptor=self.params.features.descriptor,
             size=(self.params.features.width, self.params.features.height),
+            flags=self.params.features.flags,
         )
 
     def _grow(self, need: int) -> None:

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from vision_testkit import scene
 
 from server.vision import FeatureParams, ImageFeatures, extract
-from server.vision.features import signature_blocks, signature_length
+from server.vision.features import grey_world, signature_blocks, signature_length
 
 
 def test_extract_shapes_and_dtypes() -> None:
@@ -98,3 +98,48 @@ def test_from_bytes_rejects_foreign_or_corrupt_blobs() -> None:
 
 def test_extraction_is_deterministic() -> None:
     assert extract(scene(6)) == extract(scene(6))
+
+
+def _block(sig: np.ndarray, name: str, params: FeatureParams) -> np.ndarray:
+    start = 0
+    for block, length in signature_blocks(params):
+        if block == name:
+            return sig[start : start + length]
+        start += length
+    raise KeyError(name)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 7])
+def test_grey_world_cancels_a_dimmer_warmer_light(seed: int) -> None:
+    """The simulated home's lighting condition scales B, G, R by about 0.33, 0.52, 0.70."""
+    img = scene(seed)
+    dim = np.clip(img * np.array([0.33, 0.52, 0.70]), 0, 255).astype(np.uint8)
+    dist = {}
+    for constancy in (True, False):
+        p = FeatureParams(colour_constancy=constancy)
+        a, b = extract(img, p).signature, extract(dim, p).signature
+        dist[constancy] = {
+            name: float(np.linalg.norm(_block(a, name, p) - _block(b, name, p)))
+            for name in ("hist", "thumb")
+        }
+    assert dist[True]["thumb"] < 0.05 < 0.3 < dist[False]["thumb"]
+    # flat synthetic colours make peaky histograms: quantisation keeps some distance
+    assert dist[True]["hist"] < 0.6 * dist[False]["hist"]
+
+
+def test_grey_world_sets_every_channel_mean_and_leaves_black_alone() -> None:
+    img = scene(3)
+    out = grey_world(img, 100.0)
+    means = out.reshape(-1, 3).mean(axis=0)
+    assert np.all(np.abs(means - 100.0) < 3.0)  # saturation at 255 may pull a mean down
+    black = np.zeros((8, 8, 3), np.uint8)
+    assert np.array_equal(grey_world(black), black)
+
+
+def test_features_remember_how_they_were_normalised() -> None:
+    on, off = FeatureParams(), FeatureParams(colour_constancy=False)
+    f = extract(scene(2), on)
+    g = ImageFeatures.from_bytes(f.to_bytes())
+    assert g.flags == on.flags != off.flags
+    assert on.matches(g) and not off.matches(g)
+    assert not FeatureParams(descriptor="orb").matches(g)
