@@ -56,6 +56,17 @@ class NavigationParams:
       images agree with the prediction (the tracker's evidence ratio is at least
       ``TrackerParams.localised_evidence``), and never before ``arrive_min_steps`` frames of
       the task: a robot carried away right after a task does not "arrive" on a stale belief.
+    * ``approach_s`` (1.0 s of robot time): the task arrives only after the robot has followed
+      a taught edge into the goal for this long during the task (Navigate on an edge whose
+      target is the goal). Until then the goal votes to leave by its cheapest round trip
+      (:func:`server.policy.voting.build_vote_plan`, ``hold_goal``): a robot that finds itself
+      in the goal room but off the taught spot backs out, turns round and homes in along the
+      end of the taught path, which is how it reaches the spot (0.05-0.1 m in the simulated
+      home) rather than stopping wherever it stood (0.7-0.9 m off). Waived for a goal with no
+      taught edge into it or out of it. 0 disables it.
+    * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
+      may have been carried since its last task, and a stale belief at the goal made it
+      "arrive" in one second, metres away, in the simulated home.
     * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
     * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
     * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
@@ -74,6 +85,8 @@ class NavigationParams:
     arrive_mass: float = 0.6
     arrive_steps: int = 3
     arrive_min_steps: int = 5
+    approach_s: float = 1.0
+    fresh_belief: bool = True
     max_task_s: float = 300.0
     lost_steps: int = 200
     frame_timeout_s: float = 5.0
@@ -126,6 +139,10 @@ class TourRuntime:
             end = graph.n_locations + int(graph.edge_offsets[j + 1])
             at[e.target].extend(range(end - int(self.model.exit_len[j]), end))
         self.at_location = tuple(np.asarray(a, dtype=np.int64) for a in at)
+        # locations a robot can leave and come back into along taught edges
+        ins = {e.target for e in graph.edges if e.n_images > 0}
+        outs = {e.source for e in graph.edges if e.n_images > 0}
+        self.approachable = tuple(k in ins and k in outs for k in range(graph.n_locations))
 
     def moving_from(self, edge: int, k: int) -> int | None:
         """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
@@ -176,6 +193,8 @@ class Task:
     steps: int = 0
     explore_streak: int = 0
     arrive_streak: int = 0
+    approach_s: float = 0.0  # robot time spent following a taught edge into the goal
+    approached: bool = False
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
@@ -236,6 +255,22 @@ class RobotSession:
         if old.shape == (runtime.model.n_fine,):
             self.tracker.set_belief(old)
 
+    def start_task(self, task: Task) -> None:
+        """Make ``task`` the robot's task (the caller ends any task underway first). With
+        ``fresh_belief`` the belief restarts from the prior and the motion state is cleared."""
+        self.task = task
+        if self.params.fresh_belief:
+            self.tracker.reset()
+            self.last_action = Action.do_nothing()
+        self.leaving = None
+        self.searched_rad = 0.0
+        self.unstick_until = None
+        task.approached = task.approached or not self.needs_approach(task.goal)
+
+    def needs_approach(self, goal: int) -> bool:
+        """Whether arriving at location ``goal`` needs an approach along a taught edge."""
+        return self.params.approach_s > 0 and self.runtime.approachable[goal]
+
     def step(
         self,
         image: npt.NDArray[np.uint8],
@@ -261,9 +296,16 @@ class RobotSession:
         if task is not None and task.state == "underway":
             if task.started_robot_time is None:
                 task.started_robot_time = timestamp
-            decision = decide(rt.graph, summary.belief, task.goal, rt.costs(task.goal), p.policy)
+            decision = decide(
+                rt.graph,
+                summary.belief,
+                task.goal,
+                rt.costs(task.goal),
+                p.policy,
+                hold_goal=task.approached,
+            )
             command = self._command(decision, features, similarity, summary, depth, timestamp)
-            self._advance_task(task, summary, decision, timestamp, wall)
+            self._advance_task(task, summary, decision, command, timestamp, wall, dt)
             if task.state != "underway":
                 command = Command(0.0, 0.0, Action.do_nothing())
         else:
@@ -419,14 +461,29 @@ class RobotSession:
         task: Task,
         summary: BeliefSummary,
         decision: Decision,
+        command: Command,
         timestamp: float,
         wall: float,
+        dt: float,
     ) -> None:
         p = self.params
         task.steps += 1
+        edge = command.action.edge
+        if (
+            command.action.kind == ActionKind.NAVIGATE
+            and edge is not None
+            and self.runtime.graph.edges[edge].target == task.goal
+        ):
+            task.approach_s += dt
+            task.approached = task.approached or task.approach_s >= p.approach_s
         at_goal = float(summary.belief[self.runtime.at_location[task.goal]].sum())
         agrees = summary.evidence >= p.tracker.localised_evidence
-        there = at_goal >= p.arrive_mass and agrees and task.steps >= p.arrive_min_steps
+        there = (
+            at_goal >= p.arrive_mass
+            and agrees
+            and task.approached
+            and task.steps >= p.arrive_min_steps
+        )
         task.arrive_streak = task.arrive_streak + 1 if there else 0
         explore = decision.action.kind == ActionKind.EXPLORE
         task.explore_streak = task.explore_streak + 1 if explore else 0

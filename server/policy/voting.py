@@ -3,7 +3,10 @@ its belief; the action with the most vote mass wins (ties go to Navigate).
 
 * a location votes ``RotateAndFindEdge(e)`` for the outgoing edge ``e`` minimising
   ``edge cost + cost(target of e)``; ``Explore`` when no outgoing edge reaches the goal;
-* the goal location votes ``DoNothing``;
+* the goal location votes ``DoNothing`` - unless ``hold_goal`` is False, when it votes like any
+  other location, for its cheapest round trip out and back in (beyond 001: the session asks for
+  that until the robot has come into the goal along a taught edge, see
+  :attr:`server.session.NavigationParams.approach_s`);
 * an edge image votes ``Navigate`` if going on (rest of the edge + cost of its target) is not
   dearer than turning back (half a turn + the reverse edge from the mirrored image + cost of the
   origin), else ``RotateAndFindEdge(reverse edge)``; an edge with no reverse edge can only go on;
@@ -91,9 +94,19 @@ class VotePlan:
 
 
 def build_vote_plan(
-    graph: TourGraph, goal: int, costs: npt.ArrayLike, params: PolicyParams | None = None
+    graph: TourGraph,
+    goal: int,
+    costs: npt.ArrayLike,
+    params: PolicyParams | None = None,
+    *,
+    hold_goal: bool = True,
 ) -> VotePlan:
-    """Votes of every fine state for ``goal`` given ``(n_locations,)`` ``costs`` (seconds)."""
+    """Votes of every fine state for ``goal`` given ``(n_locations,)`` ``costs`` (seconds).
+
+    ``hold_goal`` False: the goal location votes RotateAndFindEdge for the outgoing edge of the
+    cheapest round trip (edge cost + cost back from its target) instead of DoNothing; a goal
+    without such an edge still votes DoNothing.
+    """
     p = params if params is not None else PolicyParams()
     cost = np.asarray(costs, dtype=np.float64)
     L = graph.n_locations
@@ -110,7 +123,8 @@ def build_vote_plan(
     for k in range(L):
         if k == goal:
             vote[k] = DO_NOTHING
-            continue
+            if hold_goal:
+                continue
         best, best_c = -1, math.inf
         for j, e in enumerate(graph.edges):
             if e.source == k and e.n_images > 0:
@@ -152,18 +166,22 @@ def build_vote_plan(
     )
 
 
-_PLANS: dict[int, tuple[weakref.ref[TourGraph], int, bytes, PolicyParams, VotePlan]] = {}
+_PLANS: dict[
+    tuple[int, bool], tuple[weakref.ref[TourGraph], int, bytes, PolicyParams, VotePlan]
+] = {}
 
 
-def _plan_for(graph: TourGraph, goal: int, costs: FloatArray, params: PolicyParams) -> VotePlan:
-    key = id(graph)
+def _plan_for(
+    graph: TourGraph, goal: int, costs: FloatArray, params: PolicyParams, hold_goal: bool
+) -> VotePlan:
+    key = (id(graph), hold_goal)
     hit = _PLANS.get(key)
     cbytes = costs.tobytes()
     if hit is not None:
         ref, g, cb, pp, plan = hit
         if ref() is graph and g == goal and cb == cbytes and pp == params:
             return plan
-    plan = build_vote_plan(graph, goal, costs, params)
+    plan = build_vote_plan(graph, goal, costs, params, hold_goal=hold_goal)
     if len(_PLANS) > 64:
         _PLANS.clear()
     _PLANS[key] = (weakref.ref(graph), goal, cbytes, params, plan)
@@ -178,11 +196,12 @@ def decide(
     params: PolicyParams | None = None,
     *,
     plan: VotePlan | None = None,
+    hold_goal: bool = True,
 ) -> Decision:
     """Pick the action for ``(n_fine,)`` belief ``belief_fine`` (sums to 1) toward ``goal``.
 
     ``costs`` is ``cost_to_goal(graph, goal, ...)``. The vote plan is cached per graph, goal,
-    costs and params (or pass ``plan`` from :func:`build_vote_plan`).
+    costs, params and ``hold_goal`` (see :func:`build_vote_plan`), or pass ``plan``.
     """
     p = params if params is not None else PolicyParams()
     b = np.asarray(belief_fine, dtype=np.float64)
@@ -190,7 +209,7 @@ def decide(
         raise ValueError(f"belief has shape {b.shape}, expected ({graph.n_fine},)")
     cost = np.asarray(costs, dtype=np.float64)
     if plan is None:
-        plan = _plan_for(graph, goal, cost, p)
+        plan = _plan_for(graph, goal, cost, p, hold_goal)
     elif plan.goal != goal:
         raise ValueError(f"the vote plan is for goal {plan.goal}, not {goal}")
     total = float(b.sum())

@@ -21,7 +21,7 @@ from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
 from server.session import Command, NavigationParams, RobotSession, Task, TourRuntime
 from server.storage.repo import NavigationRow, Repo
-from server.vision.features import ImageFeatures, extract
+from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.index import learn_weights
 
 BELIEF_SNAPSHOT_S = 1.0
@@ -131,12 +131,7 @@ class NavigationService:
         fresh: list[tuple[int, bytes]] = []
         fp = self.params.features
         for image_id in ids:
-            blob = stored.get(image_id)
-            feats = None if blob is None else ImageFeatures.from_bytes(blob)
-            if feats is not None and (
-                feats.descriptor != fp.descriptor or feats.size != (fp.width, fp.height)
-            ):
-                feats = None
+            feats = _stored_features(stored.get(image_id), fp)
             if feats is None:
                 image, _, _ = decode_jpeg(self.repo.image_jpeg(image_id), self.limits)
                 feats = extract(image, fp)
@@ -192,6 +187,8 @@ class NavigationService:
                 reason=row.reason,
                 ended_at=row.ended_at,
                 steps=row.steps,
+                # how far the approach had come is not persisted: it is done again
+                approached=not session.needs_approach(goal),
             )
             if row.state == "underway":
                 session.last_frame_wall = self.clock()  # the silence clock restarts
@@ -262,12 +259,13 @@ class NavigationService:
         with session.lock:
             if session.task is not None and session.task.state == "underway":
                 session.task.end("cancelled", f"replaced by a new goal: {body.location}", now)
-            session.task = Task(
+            task = Task(
                 id=self.repo.next_task_id(), goal=goal, goal_name=body.location, started_at=now
             )
+            session.start_task(task)
             session.last_frame_wall = now
             self._persist(session, belief=True)
-            return task_public(session.task, tour_id)
+            return task_public(task, tour_id)
 
     def _default_tour(self, robot: str) -> int:
         if robot in self._tour_of:
@@ -429,3 +427,16 @@ def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPub
     return schemas.BeliefPublic(
         top=top, entropy=summary.entropy, localised=summary.localised, localised_state=localised
     )
+
+
+def _stored_features(blob: bytes | None, params: FeatureParams) -> ImageFeatures | None:
+    """The stored features of an image when they can be used with ``params``; ``None`` (so the
+    caller re-extracts) when missing, written by another format version, or extracted with
+    other settings."""
+    if blob is None:
+        return None
+    try:
+        feats = ImageFeatures.from_bytes(blob)
+    except ValueError:
+        return None
+    return feats if params.matches(feats) else None

@@ -89,6 +89,20 @@ def test_goal_says_do_nothing() -> None:
     assert d.action == Action.do_nothing()
 
 
+def test_a_goal_not_yet_approached_votes_for_its_cheapest_round_trip() -> None:
+    # office -> kitchen -> office (14 + 14 s) beats office -> hall -> ... (44 + 28 s)
+    d = decide(G, at(G, (OFFICE, 1.0)), OFFICE, cost_to_goal(G, OFFICE), hold_goal=False)
+    assert d.action == Action.rotate(3)
+    # the cached plan for hold_goal=True is a different one
+    d = decide(G, at(G, (OFFICE, 1.0)), OFFICE, cost_to_goal(G, OFFICE))
+    assert d.action == Action.do_nothing()
+
+
+def test_a_goal_with_no_way_out_does_nothing_even_when_not_approached() -> None:
+    plan = build_vote_plan(G, GARAGE, cost_to_goal(G, GARAGE), hold_goal=False)
+    assert plan.vote[GARAGE] == 1  # DoNothing
+
+
 def test_turns_back_on_an_edge_when_that_is_cheaper() -> None:
     costs = cost_to_goal(G, HALL)
     # 5 images into the 40 s corridor hall -> office, going to the hall: turn round (edge 5)
