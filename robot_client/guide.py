@@ -58,6 +58,60 @@ class GuideParams:
 ProgressHook = Callable[[str], None]
 
 
+def check_route(plan: FloorPlan, route: Sequence[str]) -> None:
+    """``ValueError`` naming the places of ``route`` that ``plan`` does not have."""
+    places = {p.name for p in plan.places}
+    unknown = [name for name in route if name not in places]
+    if not route or unknown:
+        raise ValueError(f"route names unknown places {unknown}; the plan has {sorted(places)}")
+
+
+@dataclass(frozen=True)
+class TourStep:
+    """One moment of a guided tour: ``kind`` is ``"frame"`` (a step along the path to
+    ``place``; upload the camera frame), ``"spin"`` (a kept step of the spin at ``place``) or
+    ``"mark"`` (the robot has just arrived at ``place``: name it). ``step`` is the control
+    step (time, ground-truth pose, motion); ``None`` for a mark."""
+
+    kind: str
+    place: str
+    step: Step | None = None
+
+
+def guided_tour_steps(
+    robot: SimulatedRobot,
+    plan: FloorPlan,
+    route: Sequence[str] = DEFAULT_ROUTE,
+    params: GuideParams = GuideParams(),
+) -> Iterator[TourStep]:
+    """Walk ``route`` (place names of ``plan``) and say what happens at every step.
+
+    The robot is first put at the route's first place. Each arrival is a ``mark``; every place
+    is spun at (one full turn, every ``spin_every``-th step kept) on its first visit only.
+    """
+    check_route(plan, route)
+    places = {p.name: p for p in plan.places}
+    first = places[route[0]]
+    robot.teleport(Pose(first.x, first.y, first.yaw))
+    visited: set[str] = set()
+
+    def arrive(name: str) -> Iterator[TourStep]:
+        yield TourStep("mark", name)
+        if name in visited:
+            return
+        visited.add(name)
+        for k, step in enumerate(spin(robot, turns=1.0, w=params.spin_w, dt=params.follow.dt)):
+            if k % params.spin_every == 0:
+                yield TourStep("spin", name, step)
+
+    yield from arrive(route[0])
+    for name in route[1:]:
+        place = places[name]
+        for step in walk_to(robot, place.x, place.y, place.yaw, params):
+            yield TourStep("frame", name, step)
+        yield from arrive(name)
+
+
 def teach_route(
     client: TeachRepeatClient,
     robot_name: str,
@@ -74,15 +128,10 @@ def teach_route(
     The robot is first put at the route's first place. Every place is spun at on its first
     visit only; later visits just close the path into it.
     """
-    places = {p.name: p for p in plan.places}
-    unknown = [name for name in route if name not in places]
-    if unknown:
-        raise ValueError(f"route names unknown places {unknown}; the plan has {sorted(places)}")
-    first = places[route[0]]
-    robot.teleport(Pose(first.x, first.y, first.yaw))
+    check_route(plan, route)  # before anything is sent
+    steps = guided_tour_steps(robot, plan, route, params)
     tour_id = client.tour_named(tour, create=True).id
     client.start_teaching(robot_name, tour_id)
-    visited: set[str] = set()
 
     def jpeg() -> bytes:
         image = robot.read()
@@ -93,26 +142,22 @@ def teach_route(
             raise RuntimeError("could not encode a frame")
         return buf.tobytes()
 
-    def arrive(name: str) -> None:
-        client.mark_location(robot_name, name)
-        if name in visited:
-            return
-        visited.add(name)
-        for k, step in enumerate(spin(robot, turns=1.0, w=params.spin_w, dt=params.follow.dt)):
-            if k % params.spin_every == 0:
-                client.upload_spin_image(robot_name, jpeg(), timestamp=step.t, v=step.v, w=step.w)
-                if on_frame:
-                    on_frame(f"spin {name}")
-
     try:
-        arrive(route[0])
-        for name in route[1:]:
-            place = places[name]
-            for step in walk_to(robot, place.x, place.y, place.yaw, params):
-                client.upload_frame(robot_name, jpeg(), timestamp=step.t, v=step.v, w=step.w)
-                if on_frame:
-                    on_frame(f"to {name}")
-            arrive(name)
+        for item in steps:
+            if item.kind == "mark":
+                client.mark_location(robot_name, item.place)
+                continue
+            st = item.step
+            if st is None:  # only marks have no control step
+                continue
+            if item.kind == "spin":
+                client.upload_spin_image(robot_name, jpeg(), timestamp=st.t, v=st.v, w=st.w)
+                label = f"spin {item.place}"
+            else:
+                client.upload_frame(robot_name, jpeg(), timestamp=st.t, v=st.v, w=st.w)
+                label = f"to {item.place}"
+            if on_frame:
+                on_frame(label)
         ended = client.finish_teaching(robot_name)
     except BaseException:
         client.abort_teaching(robot_name)

@@ -32,6 +32,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "server.bench.navigate",
         "closed-loop navigation in the simulated home",
     ),
+    (
+        ("bench", "sim-retrieval"),
+        "server.bench.sim_retrieval",
+        "image matching in the simulated home under changed light and furniture",
+    ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
     (("bench", "dashboard"), "web.bench", "robot step latency with and without a browser"),
