@@ -56,13 +56,16 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 
 def bind_port(host: str, port: int) -> socket.socket:
-    """A listening socket on ``host:port`` (``port`` 0 = any free port)."""
+    """A listening socket on ``host:port`` (``port`` 0 = any free port). It listens
+    before the address is printed, so a client that reads the address can connect at
+    once (connections wait in the backlog until the server accepts them)."""
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     # Accepted connections inherit this: without it, a response written in two parts waits
     # for the client's delayed ACK (40 ms per request on Linux).
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     sock.bind((host, port))
+    sock.listen(2048)
     return sock
 
 
