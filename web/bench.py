@@ -62,7 +62,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run Chromium at this niceness (e.g. 10 models a browser on another machine: "
         "on a small box its software WebGL rendering competes with the server for CPU)",
     )
+    parser.add_argument(
+        "--server-cpus",
+        default=None,
+        help="comma-separated CPUs for this process (API, dashboard, robot client), e.g. 0",
+    )
+    parser.add_argument(
+        "--browser-cpus",
+        default=None,
+        help="comma-separated CPUs for Chromium, e.g. 1: with --server-cpus it models a browser "
+        "on the user's own device, so only the server's cost of feeding a watcher is measured",
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+
+
+def _cpus(text: str | None) -> set[int] | None:
+    return None if not text else {int(c) for c in text.split(",") if c.strip()}
 
 
 # --- a live server in this process -----------------------------------------------------------
@@ -238,11 +253,11 @@ def headless_browser(url: str, *, executable: str = CHROMIUM) -> Iterator[Any]:
             context.close()
 
 
-def renice_descendants(niceness: int) -> int:
-    """Set the niceness of every descendant process of this one (the browser); returns how
-    many were changed. Linux only (reads /proc); a no-op for ``niceness`` 0."""
-    if niceness == 0 or not Path("/proc").is_dir():
-        return 0
+def descendants() -> set[int]:
+    """Process ids of every descendant of this process (the browser and its helpers). Linux
+    only (reads /proc); empty elsewhere."""
+    if not Path("/proc").is_dir():
+        return set()
     parents: dict[int, int] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         with contextlib.suppress(OSError, ValueError, IndexError):
@@ -255,11 +270,35 @@ def renice_descendants(niceness: int) -> int:
         changed = bool(kids)
         mine |= kids
     mine.discard(os.getpid())
+    return mine
+
+
+def renice_descendants(niceness: int) -> int:
+    """Set the niceness of every descendant process of this one (the browser); returns how
+    many were changed. A no-op for ``niceness`` 0."""
+    if niceness == 0:
+        return 0
     done = 0
-    for pid in mine:
+    for pid in descendants():
         with contextlib.suppress(OSError):
             os.setpriority(os.PRIO_PROCESS, pid, niceness)
             done += 1
+    return done
+
+
+def pin_descendants(cpus: set[int] | None) -> int:
+    """Restrict every thread of every descendant process to ``cpus``; returns how many threads
+    were pinned (affinity is per thread on Linux). A no-op for ``None``."""
+    if not cpus:
+        return 0
+    done = 0
+    for pid in descendants():
+        tasks = Path(f"/proc/{pid}/task")
+        tids = [int(t.name) for t in tasks.iterdir()] if tasks.is_dir() else [pid]
+        for tid in tids:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, cpus)
+                done += 1
     return done
 
 
@@ -284,6 +323,9 @@ def run(args: argparse.Namespace) -> int:
     if not Path(args.chromium).exists():
         print(f"no Chromium at {args.chromium}; pass --chromium PATH")
         return 2
+    server_cpus = _cpus(args.server_cpus)
+    if server_cpus:
+        os.sched_setaffinity(0, server_cpus)  # threads started from now on inherit it
     with tempfile.TemporaryDirectory() as tmp:
         live = start_live_server(Path(tmp) / "bench.sqlite")
         try:
@@ -315,7 +357,9 @@ def _alternate(
             with headless_browser(live.dashboard.url, executable=args.chromium) as page:
                 page.wait_for_selector("canvas", timeout=30_000)
                 renice_descendants(args.browser_nice)
+                pin_descendants(_cpus(args.browser_cpus))
                 page.wait_for_timeout(1000)  # the scene and images have arrived
+                pin_descendants(_cpus(args.browser_cpus))  # threads started since
                 clients = len(live.dashboard.server.get_clients()) if live.dashboard.server else 0
                 trips[mode] += streamer.send(args.frames)
         else:
@@ -347,6 +391,8 @@ def _alternate(
         "corridor query frames, without / with a headless Chromium showing the dashboard",
         "fps": args.fps,
         "browser_nice": args.browser_nice,
+        "server_cpus": args.server_cpus,
+        "browser_cpus": args.browser_cpus,
         "blocks": args.blocks,
         "frames_per_block": args.frames,
         "step_ms_without_browser": a,
