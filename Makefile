@@ -5,7 +5,7 @@ PYTHON ?= python3.11
 VENV := .venv
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test lint serve clean
+.PHONY: demo test lint serve screenshot clean
 
 $(STAMP): pyproject.toml scripts/setup-system.sh
 	./scripts/setup-system.sh
@@ -25,6 +25,9 @@ lint: $(STAMP)
 
 serve: $(STAMP)
 	$(VENV)/bin/teachrepeat serve
+
+screenshot: $(STAMP)
+	DASHBOARD_SCREENSHOT=docs/img/dashboard.png $(VENV)/bin/pytest -q tests/e2e/test_e2e_dashboard.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -57,16 +57,24 @@ class NavigationParams:
       ``TrackerParams.localised_evidence``), and never before ``arrive_min_steps`` frames of
       the task: a robot carried away right after a task does not "arrive" on a stale belief.
     * ``approach_s`` (1.0 s of robot time): the task arrives only after the robot has followed
-      a taught edge into the goal for this long during the task (Navigate on an edge whose
-      target is the goal). Until then the goal votes to leave by its cheapest round trip
-      (:func:`server.policy.voting.build_vote_plan`, ``hold_goal``): a robot that finds itself
-      in the goal room but off the taught spot backs out, turns round and homes in along the
-      end of the taught path, which is how it reaches the spot (0.05-0.1 m in the simulated
-      home) rather than stopping wherever it stood (0.7-0.9 m off). Waived for a goal with no
+      a taught edge into the goal for this long (Navigate on an edge whose target is the
+      goal) as its last move: turning or exploring since starts the count again, since a robot
+      that had to look round may have lost its place. Until then the goal votes to leave by
+      its cheapest round trip (:func:`server.policy.voting.build_vote_plan`, ``hold_goal``):
+      a robot that finds itself in the goal room but off the taught spot backs out, turns
+      round and homes in along the end of the taught path, which is how it reaches the spot
+      (0.05-0.1 m in the simulated home) rather than stopping wherever it stood (0.7-0.9 m
+      off). Waived for a goal with no
       taught edge into it or out of it. 0 disables it.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.
+    * ``stall_s`` (20 s of robot time) and ``stall_m`` (0.3 m): a navigating robot that has
+      driven less than ``stall_m`` (by its reported speed) in ``stall_s`` is stuck, whatever
+      the reason (pressed against a wall beside a door it is homing at, a search that keeps
+      almost finding its edge): it explores toward open space for ``MotionParams.unstick_s``
+      and then carries on from there. Longer than a full search turn (``find_turns`` at
+      ``spin_w``: 16 s), so a robot that is only looking round is left alone. 0 disables it.
     * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
     * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
     * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
@@ -87,6 +95,8 @@ class NavigationParams:
     arrive_min_steps: int = 5
     approach_s: float = 1.0
     fresh_belief: bool = True
+    stall_s: float = 20.0
+    stall_m: float = 0.3
     max_task_s: float = 300.0
     lost_steps: int = 200
     frame_timeout_s: float = 5.0
@@ -245,6 +255,9 @@ class RobotSession:
         # radians turned looking for an edge without finding it; robot time to explore until
         self.searched_rad = 0.0
         self.unstick_until: float | None = None
+        # stall watchdog: robot time the current window began, metres driven since
+        self.stall_since: float | None = None
+        self.stall_driven = 0.0
 
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed)."""
@@ -265,6 +278,7 @@ class RobotSession:
         self.leaving = None
         self.searched_rad = 0.0
         self.unstick_until = None
+        self.stall_since, self.stall_driven = None, 0.0
         task.approached = task.approached or not self.needs_approach(task.goal)
 
     def needs_approach(self, goal: int) -> bool:
@@ -304,6 +318,7 @@ class RobotSession:
                 p.policy,
                 hold_goal=task.approached,
             )
+            self._watch_stall(timestamp, v, dt)
             command = self._command(decision, features, similarity, summary, depth, timestamp)
             self._advance_task(task, summary, decision, command, timestamp, wall, dt)
             if task.state != "underway":
@@ -339,6 +354,9 @@ class RobotSession:
         mp = self.params.motion
         action = decision.action
         target: int | None
+        if self.unstick_until is not None and timestamp < self.unstick_until:
+            v, w = avoid_obstacles(*explore_command(depth, mp), depth, mp)
+            return Command(v, w, Action.explore())
         if action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self.leaving = None
             self.searched_rad = 0.0
@@ -383,16 +401,29 @@ class RobotSession:
         )
         return v, w, target
 
+    def _watch_stall(self, now: float, v: float, dt: float) -> None:
+        """Stall watchdog: after ``stall_s`` of robot time with less than ``stall_m`` driven,
+        explore toward open space for ``unstick_s`` (see :class:`NavigationParams`)."""
+        p = self.params
+        if p.stall_s <= 0:
+            return
+        if self.stall_since is None:
+            self.stall_since, self.stall_driven = now, 0.0
+        self.stall_driven += abs(v) * dt
+        if self.stall_driven >= p.stall_m:
+            self.stall_since, self.stall_driven = now, 0.0
+        elif now - self.stall_since >= p.stall_s:
+            self.unstick_until = now + p.motion.unstick_s
+            self.stall_since, self.stall_driven = now, 0.0
+            self.leaving = None
+
     def _unstick(
         self, v: float, w: float, action: Action, depth: npt.ArrayLike | None, now: float
     ) -> tuple[float, float, Action]:
         """Count the turning done while searching; after ``find_turns`` full turns without
         finding the edge, explore toward open space for ``unstick_s``, then search again."""
         mp = self.params.motion
-        if self.unstick_until is not None:
-            if now < self.unstick_until:
-                ev, ew = explore_command(depth, mp)
-                return ev, ew, Action.explore()
+        if self.unstick_until is not None:  # explored (see _command): search afresh
             self.unstick_until = None
             self.searched_rad = 0.0
         dt = 0.0 if self.last_timestamp is None else max(0.0, now - self.last_timestamp)
@@ -445,7 +476,10 @@ class RobotSession:
         target = rt.edge_image(edge, best)
         view = float(similarity.image[target])
         homing = homing_offset(features, rt.features[target])
-        if homing is not None and view >= mp.found_similarity:
+        # a view where the edge ends leaves nothing to drive onto: spinning on lets the
+        # belief move (reporting Navigate would not take it off the reverse edge)
+        ends_here = rt.moving_from(edge, min(best + 1, last)) is None
+        if homing is not None and view >= mp.found_similarity and not ends_here:
             if abs(homing.offset) <= mp.found_offset:
                 self.leaving = (edge, best, 0)
                 v, w, target = self._follow(edge, best + 1, features)
@@ -469,13 +503,18 @@ class RobotSession:
         p = self.params
         task.steps += 1
         edge = command.action.edge
+        kind = command.action.kind
         if (
-            command.action.kind == ActionKind.NAVIGATE
+            kind == ActionKind.NAVIGATE
             and edge is not None
             and self.runtime.graph.edges[edge].target == task.goal
         ):
             task.approach_s += dt
             task.approached = task.approached or task.approach_s >= p.approach_s
+        elif kind != ActionKind.DO_NOTHING and self.needs_approach(task.goal):
+            # the approach must be the robot's last move: one that turned or explored since
+            # may have lost its place and has to come in along an edge again
+            task.approach_s, task.approached = 0.0, False
         at_goal = float(summary.belief[self.runtime.at_location[task.goal]].sum())
         agrees = summary.evidence >= p.tracker.localised_evidence
         there = (

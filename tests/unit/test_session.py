@@ -123,3 +123,49 @@ def test_a_goal_that_cannot_be_left_and_reentered_needs_no_approach() -> None:
 @pytest.mark.parametrize("goal", [A, B, C])
 def test_every_taught_place_with_edges_needs_an_approach(goal: int) -> None:
     assert session().needs_approach(goal)
+
+
+def _watchdog_explores(s: RobotSession, v: float, steps: int = 40) -> list[bool]:
+    """Per step: the command explores although the policy did not decide to."""
+    s.start_task(Task(id=1, goal=C, goal_name="C", started_at=0.0))
+    a_to_b = GRAPH.edges[0].image_ids
+    out = []
+    for i in range(steps):
+        rec = s.step(scene(int(a_to_b[3])), timestamp=0.1 * (i + 1), v=v)
+        assert rec.decision is not None
+        out.append(
+            rec.command.action.kind == ActionKind.EXPLORE
+            and rec.decision.action.kind != ActionKind.EXPLORE
+        )
+    return out
+
+
+def test_a_robot_that_does_not_get_anywhere_explores_for_a_while() -> None:
+    stuck = _watchdog_explores(session(stall_s=2.0), v=0.0)
+    first = stuck.index(True)
+    assert 19 <= first <= 21  # after 2 s of robot time at 10 frames/s
+    # it explores for unstick_s (4 s = 40 frames here), then carries on
+    assert all(stuck[first : first + 19])
+
+
+def test_the_stall_watchdog_leaves_a_moving_robot_alone() -> None:
+    assert not any(_watchdog_explores(session(stall_s=2.0), v=0.3))
+    assert not any(_watchdog_explores(session(stall_s=0.0), v=0.0))
+
+
+def test_the_approach_must_be_the_last_move_before_arriving() -> None:
+    s = session()
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    t = 0.0
+    for i in GRAPH.edges[0].image_ids[:8]:  # most of the way along A -> B
+        t += 0.5
+        s.step(scene(int(i)), timestamp=t, v=0.3)
+    assert task.approached and task.state == "underway"
+    # then it finds itself somewhere else (carried onto B -> C) and has to look round
+    kinds = []
+    for i in GRAPH.edges[2].image_ids[:4]:
+        t += 0.5
+        kinds.append(s.step(scene(int(i)), timestamp=t, v=0.0).command.action.kind)
+    assert any(k not in (ActionKind.NAVIGATE, ActionKind.DO_NOTHING) for k in kinds)
+    assert not task.approached and task.approach_s == 0.0
