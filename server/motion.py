@@ -39,6 +39,8 @@ class MotionParams:
     * ``explore_v`` (0.15), ``explore_gain`` (1.0 rad/s per rad): Explore speed and steering.
     * ``avoid_start_m`` (0.55): obstacles nearer than this start to steer the robot away.
     * ``avoid_full_m`` (0.25): at this range avoidance has full weight and forward motion stops.
+    * ``open_m`` (2.0): ranges are counted up to this far when avoidance picks the more open
+      side (the side with the larger mean range, so a door beside the wall ahead wins).
     * ``depth_fov_deg`` (90): field of view the depth rays span (evenly, left to right).
     * ``ttl_s`` (0.6): how long a command stays valid without a newer one.
     * ``found_similarity`` (0.5) and ``found_offset`` (0.06): RotateAndFindEdge has found its
@@ -66,6 +68,7 @@ class MotionParams:
     explore_gain: float = 1.0
     avoid_start_m: float = 0.55
     avoid_full_m: float = 0.25
+    open_m: float = 2.0
     depth_fov_deg: float = 90.0
     ttl_s: float = 0.6
     found_similarity: float = 0.5
@@ -148,9 +151,11 @@ def avoid_obstacles(
     """Blend obstacle avoidance into ``(v, w)`` with a weight that grows as obstacles close in.
 
     Weight 0 beyond ``avoid_start_m``, 1 at ``avoid_full_m`` and nearer. The avoidance command
-    turns toward the more open side and does not move forward. Turning on the spot (``v`` <= 0)
-    is left alone: a round robot cannot hit anything by turning, and blending would cancel
-    the turn it needs to find its way out.
+    turns toward the more open side (larger mean range, each counted up to ``open_m``: facing
+    a wall beside a doorway, the doorway's side; the nearest range of each side would be the
+    same wall on both and flip from frame to frame) and does not move forward. Turning on the
+    spot (``v`` <= 0) is left alone: a round robot cannot hit anything by turning, and
+    blending would cancel the turn it needs to find its way out.
     """
     if depth is None or len(np.atleast_1d(depth)) == 0 or v <= 0.0:
         return v, w
@@ -162,7 +167,8 @@ def avoid_obstacles(
     if weight == 0.0:
         return v, w
     angles = ray_angles(len(ranges), params.depth_fov_deg)
-    left = float(ranges[angles > 0].min()) if np.any(angles > 0) else nearest
-    right = float(ranges[angles < 0].min()) if np.any(angles < 0) else nearest
+    counted = np.minimum(ranges, params.open_m)
+    left = float(counted[angles > 0].mean()) if np.any(angles > 0) else nearest
+    right = float(counted[angles < 0].mean()) if np.any(angles < 0) else nearest
     away = params.max_w if left >= right else -params.max_w
     return (1.0 - weight) * v, (1.0 - weight) * w + weight * away

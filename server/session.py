@@ -64,8 +64,7 @@ class NavigationParams:
       a robot that finds itself in the goal room but off the taught spot backs out, turns
       round and homes in along the end of the taught path, which is how it reaches the spot
       (0.05-0.1 m in the simulated home) rather than stopping wherever it stood (0.7-0.9 m
-      off). Waived for a goal with no
-      taught edge into it or out of it. 0 disables it.
+      off). Waived for a goal with no taught edge into it or out of it. 0 disables it.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.

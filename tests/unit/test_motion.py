@@ -107,3 +107,15 @@ def test_next_moving_matches_a_naive_loop() -> None:
             nxt = next((j for j in range(i, n) if abs(v[j]) > 1e-3 or abs(w[j]) > 1e-3), -1)
             expect.append(nxt)
         np.testing.assert_array_equal(_next_moving(v, w), expect)
+
+
+def test_facing_a_wall_beside_a_doorway_turns_toward_the_doorway() -> None:
+    # the wall is nearest slightly right of centre, the doorway opens further right
+    angles = ray_angles(31, P.depth_fov_deg)
+    ranges = 0.2 / np.cos(angles + 0.05)
+    ranges[25:] = 4.0  # through the door
+    v, w = avoid_obstacles(0.3, 0.0, ranges, P)
+    assert v == 0.0 and w == pytest.approx(-P.max_w)
+    # mirrored: the doorway on the left
+    v, w = avoid_obstacles(0.3, 0.0, ranges[::-1], P)
+    assert w == pytest.approx(P.max_w)
