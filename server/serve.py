@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import socket
 from pathlib import Path
@@ -69,11 +70,30 @@ def bind_port(host: str, port: int) -> socket.socket:
     return sock
 
 
+M_ARENA_MAX = -8  # glibc <malloc.h>
+
+
+def limit_malloc_arenas(arenas: int = 2) -> bool:
+    """Cap glibc's malloc arenas (as ``MALLOC_ARENA_MAX`` would) unless the environment sets
+    it. By default every thread of the request pool gets its own arena, and the server's RSS
+    crept up by 20 % over 5 minutes at 10 robots before levelling off; with 2 arenas it grew
+    by 4.5 % and stayed flat after the first minute (docs/reliability.md). Returns whether
+    the cap was applied."""
+    if "MALLOC_ARENA_MAX" in os.environ:
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(M_ARENA_MAX, arenas))
+    except (OSError, AttributeError):  # not glibc
+        return False
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from server.app import create_app
 
+    limit_malloc_arenas()
     settings = settings_from(args)
     app = create_app(settings)
     sock = bind_port(settings.host, settings.port)

@@ -32,3 +32,16 @@ def test_readme_documents_command(path: tuple[str, ...]) -> None:
 
 def test_parser_builds() -> None:
     assert build_parser().prog == "teachrepeat"
+
+
+def test_serve_caps_malloc_arenas_unless_the_environment_says(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import platform
+
+    from server.serve import limit_malloc_arenas
+
+    monkeypatch.setenv("MALLOC_ARENA_MAX", "4")
+    assert not limit_malloc_arenas()
+    monkeypatch.delenv("MALLOC_ARENA_MAX")
+    assert limit_malloc_arenas() == (platform.libc_ver()[0] == "glibc")
