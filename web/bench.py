@@ -357,9 +357,10 @@ def _alternate(
             with headless_browser(live.dashboard.url, executable=args.chromium) as page:
                 page.wait_for_selector("canvas", timeout=30_000)
                 renice_descendants(args.browser_nice)
-                pin_descendants(_cpus(args.browser_cpus))
+                browser_cpus = _cpus(args.browser_cpus)
+                pin_descendants(browser_cpus)
                 page.wait_for_timeout(1000)  # the scene and images have arrived
-                pin_descendants(_cpus(args.browser_cpus))  # threads started since
+                pin_descendants(browser_cpus)  # threads started since
                 clients = len(live.dashboard.server.get_clients()) if live.dashboard.server else 0
                 trips[mode] += streamer.send(args.frames)
         else:

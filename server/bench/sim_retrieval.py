@@ -55,10 +55,10 @@ def _jpeg(image: npt.NDArray[np.uint8], quality: int) -> npt.NDArray[np.uint8]:
     """Through JPEG and back, as every image reaches the server."""
     import cv2
 
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise RuntimeError("could not encode a frame")
-    return np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR), np.uint8)
+    from server.imaging import encode_jpeg
+
+    data = np.frombuffer(encode_jpeg(image, quality), np.uint8)
+    return np.asarray(cv2.imdecode(data, cv2.IMREAD_COLOR), np.uint8)
 
 
 def teach(route: tuple[str, ...]) -> tuple[list[Shot], list[str]]:
