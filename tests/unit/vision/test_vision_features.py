@@ -146,3 +146,54 @@ def test_features_remember_how_they_were_normalised() -> None:
     assert g.flags == on.flags != off.flags
     assert on.matches(g) and not off.matches(g)
     assert not FeatureParams(descriptor="orb").matches(g)
+
+
+def _grad36_naive(grey: np.ndarray, keypoints: np.ndarray, p: FeatureParams) -> np.ndarray:
+    """The grad36 definition written out per corner, cell and pixel (float64)."""
+    import cv2
+
+    g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), p.blur_sigma).astype(np.float64)
+    c = p.cell
+    out = np.zeros((len(keypoints), 36))
+    for k, (x, y) in enumerate(np.rint(keypoints).astype(int)):
+        values = []
+        for i in range(3):
+            for j in range(3):
+                sums = np.zeros(4)
+                cx, cy = x + (j - 1) * c, y + (i - 1) * c
+                for v in range(cy - c // 2, cy - c // 2 + c):
+                    for u in range(cx - c // 2, cx - c // 2 + c):
+                        gx = g[v, u + 1] - g[v, u - 1]
+                        gy = g[v + 1, u] - g[v - 1, u]
+                        sums += [max(gx, 0), max(-gx, 0), max(gy, 0), max(-gy, 0)]
+                values.extend(sums)
+        d = np.array(values)
+        d = np.minimum(d / max(np.linalg.norm(d), 1e-6), p.clip)
+        out[k] = d / max(np.linalg.norm(d), 1e-6)
+    return np.clip(np.rint(out * 255.0 / p.clip), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_grad36_equals_the_naive_definition(seed: int) -> None:
+    from server.vision.features import detect_corners, grad36_descriptors, normalise
+
+    p = FeatureParams()
+    _, grey = normalise(scene(seed), p)
+    corners = detect_corners(grey, p)[:30]
+    fast = grad36_descriptors(grey, corners, p).astype(int)
+    naive = _grad36_naive(grey, corners, p).astype(int)
+    # float32 against float64 sums: a byte may round the other way, never by more than 1
+    assert np.abs(fast - naive).max() <= 1
+    assert np.mean(fast != naive) < 0.01
+
+
+def test_grad36_near_the_border_reads_a_mirrored_image() -> None:
+    from server.vision.features import grad36_descriptors, normalise
+
+    p = FeatureParams(border=2)
+    _, grey = normalise(scene(4), p)
+    corners = np.array([[0.0, 0.0], [319.0, 239.0], [3.0, 120.0], [160.0, 120.0]], np.float32)
+    desc = grad36_descriptors(grey, corners, p)
+    assert desc.shape == (4, 36) and desc.dtype == np.uint8
+    inner = grad36_descriptors(grey, corners[3:], p)
+    np.testing.assert_array_equal(desc[3], inner[0])  # padding does not change inner corners
