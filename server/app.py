@@ -61,6 +61,7 @@ def create_app(settings: Settings, *, navigation: NavigationParams | None = None
         admin_token=settings.admin_token.get_secret_value(),
         limits=limits,
         navigation=navigation,
+        concurrent_steps=settings.concurrent_steps,
     )
 
     @asynccontextmanager

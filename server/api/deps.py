@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 
 from fastapi import Depends, Path, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from starlette.concurrency import run_in_threadpool
 
 from server.errors import Forbidden, NotFound, TooLarge, Unauthorized, UnsupportedMedia
 from server.schemas import RobotName
@@ -14,7 +15,7 @@ from server.security import hash_token, same_token
 from server.services.container import Services
 
 
-def get_services(request: Request) -> Services:
+async def get_services(request: Request) -> Services:
     services: Services = request.app.state.services
     return services
 
@@ -32,16 +33,21 @@ class Principal:
     robot: str | None = None
 
 
-def get_principal(
+async def get_principal(
     services: ServicesDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
 ) -> Principal:
+    """Async, so a frame does not hop through the thread pool to be authenticated: a known
+    token is answered from memory, an unknown one is looked up in a worker thread."""
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("missing bearer token: send 'Authorization: Bearer <token>'")
     token = credentials.credentials
     if same_token(token, services.admin_token):
         return Principal("admin")
-    robot = services.repo.robot_by_token_hash(hash_token(token))
+    token_hash = hash_token(token)
+    robot = services.robots.cached_robot(token_hash)
+    if robot is None:
+        robot = await run_in_threadpool(services.robots.robot_for_token, token_hash)
     if robot is None:
         raise Unauthorized("the bearer token is not valid; use the token given at registration")
     return Principal("robot", robot)
@@ -50,7 +56,7 @@ def get_principal(
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 
-def require_admin(principal: PrincipalDep) -> Principal:
+async def require_admin(principal: PrincipalDep) -> Principal:
     if principal.kind != "admin":
         raise Forbidden("this needs the admin token; a robot token cannot do it")
     return principal
@@ -59,7 +65,7 @@ def require_admin(principal: PrincipalDep) -> Principal:
 AdminDep = Annotated[Principal, Depends(require_admin)]
 
 
-def robot_access(
+async def robot_access(
     services: ServicesDep,
     principal: PrincipalDep,
     robot: Annotated[RobotName, Path(description="Name of the robot.")],
@@ -69,7 +75,7 @@ def robot_access(
         raise Forbidden(
             f"this token belongs to robot {principal.robot!r}; it cannot read or drive {robot!r}"
         )
-    if principal.kind == "admin" and not services.repo.robot_exists(robot):
+    if principal.kind == "admin" and not await run_in_threadpool(services.repo.robot_exists, robot):
         raise NotFound(f"no robot named {robot!r}; register it with POST /robots")
     return robot
 

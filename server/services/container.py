@@ -32,10 +32,15 @@ class Services:
         admin_token: str,
         limits: ImageLimits,
         navigation: NavigationParams | None = None,
+        concurrent_steps: int = 1,
     ) -> Services:
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
-            repo, limits, navigation, is_teaching=lambda robot: repo.teaching(robot) is not None
+            repo,
+            limits,
+            navigation,
+            is_teaching=lambda robot: repo.teaching(robot) is not None,
+            concurrent_steps=concurrent_steps,
         )
         teaching.is_navigating = nav.is_navigating
         teaching.on_change = nav.tour_changed

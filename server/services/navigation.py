@@ -39,12 +39,19 @@ class NavigationService:
         *,
         is_teaching: Callable[[str], bool] = lambda robot: False,
         clock: Callable[[], float] = time.time,
+        concurrent_steps: int = 1,
     ) -> None:
+        """``concurrent_steps``: frames turned into a command at once over all robots (decode,
+        features, belief, command); more wait their turn. Building a tour's runtime is not
+        counted, so a robot whose tour is being prepared does not hold up the others."""
+        if concurrent_steps < 1:
+            raise ValueError("concurrent_steps must be at least 1")
         self.repo = repo
         self.limits = limits
         self.params = params if params is not None else NavigationParams()
         self.is_teaching = is_teaching
         self.clock = clock
+        self._steps = threading.BoundedSemaphore(concurrent_steps)
         self._runtimes: dict[int, TourRuntime] = {}
         self._stale: set[int] = set()
         self._sessions: dict[str, RobotSession] = {}
@@ -299,8 +306,8 @@ class NavigationService:
                 f"robot {robot!r} is not teaching or navigating; start with "
                 f"POST /robots/{robot}/teach/start or POST /robots/{robot}/goto"
             )
-        image, _, _ = decode_jpeg(data, self.limits)
-        with session.lock:
+        with session.lock, self._steps:  # one robot's frames in order; a few steps at once
+            image, _, _ = decode_jpeg(data, self.limits)
             if session.last_timestamp is not None and meta.timestamp < session.last_timestamp:
                 raise Invalid(
                     f"timestamp {meta.timestamp} goes backwards: the previous frame was at "

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import sqlite3
+import threading
+import time
+from collections.abc import Callable
 
 from server import schemas
 from server.errors import Conflict
@@ -62,9 +65,39 @@ class TourService:
         )
 
 
+TOKEN_CACHE_S = 60.0
+"""Seconds a token found in the database is remembered. Tokens are never reissued by the API;
+a robot row removed by hand stops authenticating within this time."""
+
+
 class RobotService:
-    def __init__(self, repo: Repo) -> None:
+    def __init__(self, repo: Repo, *, clock: Callable[[], float] = time.monotonic) -> None:
         self.repo = repo
+        self.clock = clock
+        self._tokens: dict[str, tuple[str, float]] = {}  # token hash -> (robot, found at)
+        self._tokens_lock = threading.Lock()
+
+    def cached_robot(self, token_hash: str) -> str | None:
+        """The robot of ``token_hash`` if it was found in the database within the last
+        :data:`TOKEN_CACHE_S` seconds (no I/O: safe on the event loop); else ``None``."""
+        with self._tokens_lock:
+            hit = self._tokens.get(token_hash)
+            if hit is None:
+                return None
+            if self.clock() - hit[1] > TOKEN_CACHE_S:
+                del self._tokens[token_hash]
+                return None
+            return hit[0]
+
+    def robot_for_token(self, token_hash: str) -> str | None:
+        """The robot whose token hashes to ``token_hash`` (database), or ``None``. Found ones
+        are remembered for :meth:`cached_robot`; unknown hashes are not (no memory for a
+        caller that tries random tokens)."""
+        robot = self.repo.robot_by_token_hash(token_hash)
+        if robot is not None:
+            with self._tokens_lock:
+                self._tokens[token_hash] = (robot, self.clock())
+        return robot
 
     def register(self, body: schemas.RobotCreate) -> schemas.RobotRegistered:
         token = new_token()

@@ -431,7 +431,7 @@ def grad36_descriptors(
 @functools.lru_cache(maxsize=8)
 def _cell_sums(cell: int) -> npt.NDArray[np.float32]:
     """``(3 cell, 3) float32`` 0/1 matrix: ``m @ it`` sums the columns of ``m`` per cell."""
-    m = np.kron(np.eye(3, dtype=np.float32), np.ones((cell, 1), np.float32))
+    m = np.repeat(np.eye(3, dtype=np.float32), cell, axis=0)
     m.flags.writeable = False  # shared by every call
     return m
 

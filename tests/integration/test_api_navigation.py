@@ -172,3 +172,65 @@ def test_the_tour_is_rebuilt_after_more_teaching(
     api.client.post("/robots/rover/teach/finish", headers=robot)
     r = api.client.post("/robots/rover/goto", json={"location": "garden"}, headers=robot)
     assert r.status_code == 200, r.text
+
+
+@pytest.mark.parametrize("at_once", [1, 3])
+def test_steps_of_many_robots_run_at_most_concurrent_steps_at_once(
+    taught: tuple[Api, dict[str, str], int],
+    shared_data: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    at_once: int,
+) -> None:
+    import threading
+    import time
+
+    from server.session import RobotSession
+
+    api, _, tour_id = taught
+    navigation = api.client.app.state.services.navigation  # type: ignore[attr-defined]
+    # the app was built with the default (settings.concurrent_steps = 1); try another count
+    navigation._steps = threading.BoundedSemaphore(at_once)
+    running, most, guard = [0], [0], threading.Lock()
+    real_step = RobotSession.step
+
+    def counted_step(self: RobotSession, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
+        with guard:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        try:
+            time.sleep(0.02)  # long enough for the other robots' frames to arrive
+            return real_step(self, *args, **kwargs)  # type: ignore[arg-type]
+        finally:
+            with guard:
+                running[0] -= 1
+
+    monkeypatch.setattr(RobotSession, "step", counted_step)
+    names = [f"bot{i}" for i in range(4)]
+    tokens = {name: api.register(name) for name in names}
+    for name in names:
+        r = api.client.post(
+            f"/robots/{name}/goto",
+            json={"location": "kitchen", "tour": tour_id},
+            headers=tokens[name],
+        )
+        assert r.status_code == 200, r.text
+    frames = sorted((shared_data / "corridor" / "query").glob("*.jpg"))[:5]
+    codes: list[int] = []
+
+    def drive(name: str) -> None:
+        for k, path in enumerate(frames):
+            r = api.client.post(
+                f"/robots/{name}/frames",
+                params={"timestamp": k / 10, "v": 0.3},
+                content=path.read_bytes(),
+                headers={**tokens[name], **JPEG},
+            )
+            codes.append(r.status_code)
+
+    threads = [threading.Thread(target=drive, args=(name,)) for name in names]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert codes == [200] * (len(names) * len(frames))
+    assert most[0] == at_once

@@ -452,3 +452,49 @@ def test_real_server_logs_no_tokens_and_listens_on_loopback_only(
         assert secret[:12] not in output
     assert "authorization" not in output.lower()
     assert "POST /robots" not in output and "GET /health" not in output  # no access log
+
+
+# --- remembered tokens ------------------------------------------------------------------------
+
+
+def test_a_found_token_is_remembered_for_a_minute_and_an_unknown_one_is_not(
+    tmp_path: Path,
+) -> None:
+    from server.security import hash_token
+    from server.services.tours import TOKEN_CACHE_S, RobotService
+    from server.storage.repo import Repo
+
+    now = [1000.0]
+    repo = Repo(tmp_path / "tokens.sqlite")
+    robots = RobotService(repo, clock=lambda: now[0])
+    try:
+        from server import schemas
+
+        token = robots.register(schemas.RobotCreate(name="rover")).token
+        found = hash_token(token)
+        unknown = hash_token("not-a-token")
+        assert robots.cached_robot(found) is None  # nothing remembered before a lookup
+        assert robots.robot_for_token(found) == "rover"
+        assert robots.cached_robot(found) == "rover"
+        assert robots.robot_for_token(unknown) is None
+        assert robots.cached_robot(unknown) is None
+        # a robot row removed by hand stops authenticating once the memory expires
+        with repo.transaction():
+            repo.db.conn.execute("DELETE FROM robots WHERE name = 'rover'")
+        now[0] += TOKEN_CACHE_S - 1
+        assert robots.cached_robot(found) == "rover"
+        now[0] += 2
+        assert robots.cached_robot(found) is None
+        assert robots.robot_for_token(found) is None
+    finally:
+        repo.close()
+
+
+def test_a_token_that_authenticated_once_cannot_drive_another_robot(api: Api) -> None:
+    rover = api.register("rover")
+    api.register("other")
+    assert api.client.get("/robots/rover/state", headers=rover).status_code == 200  # remembered
+    r = api.client.get("/robots/other/state", headers=rover)
+    assert r.status_code == 403 and "belongs to robot 'rover'" in r.json()["detail"]
+    r = api.client.post("/robots/other/goto", json={"location": "kitchen"}, headers=rover)
+    assert r.status_code == 403
