@@ -40,8 +40,8 @@ class Settings(BaseSettings):
         le=64,
         description="Navigation steps (decode, features, belief, command) computed at once over "
         "all robots; the others wait their turn. A step is CPU work that partly holds the GIL, "
-        "so more at once mostly contend for it: at 20 robots one at a time served 184 "
-        "frames/s, up to 40 at once 125 (docs/reliability.md).",
+        "so more at once mostly contend for it: at 20 robots, one at a time served 170 "
+        "frames/s where up to 40 at once served 128 (docs/reliability.md).",
     )
     max_image_bytes: int = Field(
         default=4 * 1024 * 1024, gt=0, description="Largest accepted image body, bytes."
