@@ -11,14 +11,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
-import cv2
-
 from robot_client.client import TeachRepeatClient
 from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.paths import FollowParams, Step, drive_to, spin, turn_to
 from robot_client.sim.robot import SimulatedRobot
 from robot_client.sim.world import Pose
 from server import schemas
+from server.imaging import encode_jpeg
 
 DEFAULT_ROUTE: tuple[str, ...] = (
     "entry",
@@ -137,10 +136,7 @@ def teach_route(
         image = robot.read()
         if image is None:
             raise RuntimeError("the simulated camera returned no frame")
-        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, params.jpeg_quality])
-        if not ok:
-            raise RuntimeError("could not encode a frame")
-        return buf.tobytes()
+        return encode_jpeg(image, params.jpeg_quality)
 
     try:
         for item in steps:

@@ -10,12 +10,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import cv2
 import httpx
 
 from robot_client.client import ApiError, TeachRepeatClient
 from robot_client.drivers.base import Camera, Clock, DepthSensor, Motors
 from server import schemas
+from server.imaging import encode_jpeg
 
 
 @dataclass(frozen=True)
@@ -64,16 +64,14 @@ def drive(
         image = camera.read()
         if image is None:
             break
-        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, params.jpeg_quality])
-        if not ok:
-            raise OSError("could not encode the camera frame as JPEG")
+        jpeg = encode_jpeg(image, params.jpeg_quality)
         v, w = motors.odometry()
         profile = None if depth is None else [float(r) for r in depth.profile()]
         try:
             # while a command is in force, wait for the answer no longer than it stays valid
             result = client.upload_frame(
                 robot,
-                buf.tobytes(),
+                jpeg,
                 timestamp=clock.now(),
                 v=v,
                 w=w,

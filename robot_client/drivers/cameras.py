@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from robot_client.drivers.base import Image
+from server.imaging import encode_jpeg
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 
@@ -69,10 +70,7 @@ class FolderCamera:
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
             raise OSError(f"cannot decode image {path}")
-        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
-        if not ok:
-            raise OSError(f"cannot encode {path} as JPEG")
-        return buf.tobytes()
+        return encode_jpeg(np.asarray(image, np.uint8), 95)
 
     def _advance(self) -> Path | None:
         if self._next >= len(self.paths):
