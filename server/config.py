@@ -38,7 +38,7 @@ class Settings(BaseSettings):
         default=1,
         ge=1,
         le=64,
-        description="Navigation steps (decode, features, belief, command) computed at once over "
+        description="Navigation steps (features, belief, command) computed at once over "
         "all robots; the others wait their turn. A step is CPU work that partly holds the GIL, "
         "so more at once mostly contend for it: at 20 robots, one at a time served 170 "
         "frames/s where up to 40 at once served 128 (docs/reliability.md).",

@@ -41,9 +41,10 @@ class NavigationService:
         clock: Callable[[], float] = time.time,
         concurrent_steps: int = 1,
     ) -> None:
-        """``concurrent_steps``: frames turned into a command at once over all robots (decode,
-        features, belief, command); more wait their turn. Building a tour's runtime is not
-        counted, so a robot whose tour is being prepared does not hold up the others."""
+        """``concurrent_steps``: frames turned into a command at once over all robots
+        (features, belief, command); more wait their turn. Decoding the JPEG and building a
+        tour's runtime are not counted, so a large frame or a robot whose tour is being
+        prepared does not hold up the others."""
         if concurrent_steps < 1:
             raise ValueError("concurrent_steps must be at least 1")
         self.repo = repo
@@ -306,8 +307,8 @@ class NavigationService:
                 f"robot {robot!r} is not teaching or navigating; start with "
                 f"POST /robots/{robot}/teach/start or POST /robots/{robot}/goto"
             )
+        image, _, _ = decode_jpeg(data, self.limits)  # outside the slot: any size up to limits
         with session.lock, self._steps:  # one robot's frames in order; a few steps at once
-            image, _, _ = decode_jpeg(data, self.limits)
             if session.last_timestamp is not None and meta.timestamp < session.last_timestamp:
                 raise Invalid(
                     f"timestamp {meta.timestamp} goes backwards: the previous frame was at "
