@@ -354,9 +354,8 @@ class RobotSession:
         action = decision.action
         target: int | None
         if self.unstick_until is not None and timestamp < self.unstick_until:
-            v, w = avoid_obstacles(*explore_command(depth, mp), depth, mp)
-            return Command(v, w, Action.explore())
-        if action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
+            action = Action.explore()  # unsticking (watchdog or a fruitless search), see _unstick
+        elif action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self.leaving = None
             self.searched_rad = 0.0
             self.unstick_until = None
