@@ -41,7 +41,11 @@ class MotionParams:
     * ``avoid_full_m`` (0.25): at this range avoidance has full weight and forward motion stops.
     * ``open_m`` (2.0): ranges are counted up to this far when avoidance picks the more open
       side (the side with the larger mean range, so a door beside the wall ahead wins).
+    * ``avoid_switch_m`` (0.3): avoidance keeps turning the way it chose while obstacles stay
+      near, unless the other side's mean range is larger by this much (see :func:`avoid_side`).
     * ``depth_fov_deg`` (90): field of view the depth rays span (evenly, left to right).
+    * ``dock_v`` (0.12): speed of the last creep onto a place when the view says the robot
+      stopped short of it or went past it (``NavigationParams.dock``).
     * ``ttl_s`` (0.6): how long a command stays valid without a newer one.
     * ``found_similarity`` (0.5) and ``found_offset`` (0.06): RotateAndFindEdge has found its
       edge when the frame's similarity to the edge's departure image is at least the former
@@ -69,7 +73,9 @@ class MotionParams:
     avoid_start_m: float = 0.55
     avoid_full_m: float = 0.25
     open_m: float = 2.0
+    avoid_switch_m: float = 0.3
     depth_fov_deg: float = 90.0
+    dock_v: float = 0.12
     ttl_s: float = 0.6
     found_similarity: float = 0.5
     found_offset: float = 0.06
@@ -145,17 +151,45 @@ def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[
     return params.explore_v, w
 
 
+def avoid_side(depth: npt.ArrayLike | None, params: MotionParams, previous: int = 0) -> int:
+    """Which way obstacle avoidance turns: ``+1`` left, ``-1`` right, ``0`` nothing within
+    ``avoid_start_m``.
+
+    The more open side (larger mean range, each ray counted up to ``open_m``: facing a wall
+    beside a doorway, the doorway's side; the nearest range of each side would be the same
+    wall on both). A side once chosen (``previous``) is kept while obstacles stay in range,
+    unless the other side is more open by ``avoid_switch_m``: picking afresh every frame turns
+    the robot toward whichever side is momentarily more open, which swings it back and forth
+    facing the obstacle (the simulated robot sat for minutes in front of an armchair so).
+    """
+    if depth is None or len(np.atleast_1d(depth)) == 0:
+        return 0
+    ranges = np.asarray(depth, dtype=np.float64)
+    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
+    nearest = float(ranges.min())
+    if nearest >= params.avoid_start_m:
+        return 0
+    angles = ray_angles(len(ranges), params.depth_fov_deg)
+    counted = np.minimum(ranges, params.open_m)
+    left = float(counted[angles > 0].mean()) if np.any(angles > 0) else nearest
+    right = float(counted[angles < 0].mean()) if np.any(angles < 0) else nearest
+    if previous > 0 and right - left <= params.avoid_switch_m:
+        return 1
+    if previous < 0 and left - right <= params.avoid_switch_m:
+        return -1
+    return 1 if left >= right else -1
+
+
 def avoid_obstacles(
-    v: float, w: float, depth: npt.ArrayLike | None, params: MotionParams
+    v: float, w: float, depth: npt.ArrayLike | None, params: MotionParams, *, side: int = 0
 ) -> tuple[float, float]:
     """Blend obstacle avoidance into ``(v, w)`` with a weight that grows as obstacles close in.
 
     Weight 0 beyond ``avoid_start_m``, 1 at ``avoid_full_m`` and nearer. The avoidance command
-    turns toward the more open side (larger mean range, each counted up to ``open_m``: facing
-    a wall beside a doorway, the doorway's side; the nearest range of each side would be the
-    same wall on both and flip from frame to frame) and does not move forward. Turning on the
-    spot (``v`` <= 0) is left alone: a round robot cannot hit anything by turning, and
-    blending would cancel the turn it needs to find its way out.
+    turns to ``side`` (``+1`` left, ``-1`` right; ``0``: :func:`avoid_side` with no memory)
+    and does not move forward. Turning on the spot (``v`` <= 0) is left alone: a round robot
+    cannot hit anything by turning, and blending would cancel the turn it needs to find its
+    way out.
     """
     if depth is None or len(np.atleast_1d(depth)) == 0 or v <= 0.0:
         return v, w
@@ -166,9 +200,6 @@ def avoid_obstacles(
     weight = float(np.clip((params.avoid_start_m - nearest) / span, 0.0, 1.0))
     if weight == 0.0:
         return v, w
-    angles = ray_angles(len(ranges), params.depth_fov_deg)
-    counted = np.minimum(ranges, params.open_m)
-    left = float(counted[angles > 0].mean()) if np.any(angles > 0) else nearest
-    right = float(counted[angles < 0].mean()) if np.any(angles < 0) else nearest
-    away = params.max_w if left >= right else -params.max_w
+    side = side or avoid_side(ranges, params)
+    away = params.max_w if side > 0 else -params.max_w
     return (1.0 - weight) * v, (1.0 - weight) * w + weight * away

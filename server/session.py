@@ -27,6 +27,7 @@ from server.domain import TourGraph
 from server.motion import (
     MotionParams,
     avoid_obstacles,
+    avoid_side,
     explore_command,
     navigate_command,
     rotate_command,
@@ -34,7 +35,7 @@ from server.motion import (
 from server.policy.costs import CostParams, cost_to_goal
 from server.policy.voting import Decision, PolicyParams, decide
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.homing import homing_offset
+from server.vision.homing import homing_offset, homing_scale
 from server.vision.index import EngineParams, Similarity, TourIndex
 
 FloatArray = npt.NDArray[np.float64]
@@ -65,6 +66,18 @@ class NavigationParams:
       round and homes in along the end of the taught path, which is how it reaches the spot
       (0.05-0.1 m in the simulated home) rather than stopping wherever it stood (0.7-0.9 m
       off). Waived for a goal with no taught edge into it or out of it. 0 disables it.
+    * ``dock`` (True), ``dock_scale_tol`` (0.06), ``dock_min_inliers`` (10), ``dock_max_m``
+      (1.5 m), ``dock_reverse`` (True): when the belief says "arrived", the view must agree. The
+      frame is matched against the last image of the edge the robot came in on
+      (:func:`server.vision.homing.homing_scale`): the scene looks larger in that image when
+      the robot stopped short of the place and smaller when it went past it. While the median
+      of the last three scales is more than ``dock_scale_tol`` away from 1, the robot creeps
+      forward (or backs up, with ``dock_reverse``) at ``MotionParams.dock_v``, steered by the
+      same matches, for at most ``dock_max_m`` per approach (as commanded: a robot that cannot
+      move gives up as soon); then it arrives. A frame with fewer
+      than ``dock_min_inliers`` matches agreeing on a scale cannot tell (a bare wall) and
+      leaves the belief's word standing. In the simulated home the belief alone stopped 0.4-1.0
+      m short of the place, or 1.4-3.4 m past it, in 7 of 50 runs with moved furniture.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.
@@ -93,6 +106,11 @@ class NavigationParams:
     arrive_steps: int = 3
     arrive_min_steps: int = 5
     approach_s: float = 1.0
+    dock: bool = True
+    dock_scale_tol: float = 0.06
+    dock_min_inliers: int = 10
+    dock_max_m: float = 1.5
+    dock_reverse: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
@@ -204,6 +222,9 @@ class Task:
     arrive_streak: int = 0
     approach_s: float = 0.0  # robot time spent following a taught edge into the goal
     approached: bool = False
+    approach_edge: int | None = None  # the edge of that approach
+    dock_m: float = 0.0  # metres driven docking since the approach began
+    dock_log_scales: list[float] = field(default_factory=list)  # last few log scales
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
@@ -257,6 +278,8 @@ class RobotSession:
         # stall watchdog: robot time the current window began, metres driven since
         self.stall_since: float | None = None
         self.stall_driven = 0.0
+        # the way obstacle avoidance turns while obstacles stay near (+1 left, -1 right, 0 none)
+        self.avoid_side = 0
 
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed)."""
@@ -278,6 +301,7 @@ class RobotSession:
         self.searched_rad = 0.0
         self.unstick_until = None
         self.stall_since, self.stall_driven = None, 0.0
+        self.avoid_side = 0
         task.approached = task.approached or not self.needs_approach(task.goal)
 
     def needs_approach(self, goal: int) -> bool:
@@ -319,7 +343,14 @@ class RobotSession:
             )
             self._watch_stall(timestamp, v, dt)
             command = self._command(decision, features, similarity, summary, depth, timestamp)
-            self._advance_task(task, summary, decision, command, timestamp, wall, dt)
+            self._track_approach(task, command, dt)
+            there = self._belief_arrived(task, summary)
+            if there:
+                docking, there = self._dock(task, features, depth, dt)
+                command = docking or command
+            else:
+                task.dock_log_scales.clear()
+            self._advance_task(task, there, decision, timestamp, wall)
             if task.state != "underway":
                 command = Command(0.0, 0.0, Action.do_nothing())
         else:
@@ -375,8 +406,15 @@ class RobotSession:
             (v, w), target = explore_command(depth, mp), None
         else:
             v, w, target = 0.0, 0.0, None
-        v, w = avoid_obstacles(v, w, depth, mp)
+        v, w = self._avoid(v, w, depth)
         return Command(v, w, action, target)
+
+    def _avoid(self, v: float, w: float, depth: npt.ArrayLike | None) -> tuple[float, float]:
+        """Obstacle avoidance, turning the same way as on the last frame while obstacles stay
+        near (:func:`server.motion.avoid_side`)."""
+        mp = self.params.motion
+        self.avoid_side = avoid_side(depth, mp, self.avoid_side)
+        return avoid_obstacles(v, w, depth, mp, side=self.avoid_side)
 
     def _follow(self, edge: int, k: int, features: ImageFeatures) -> tuple[float, float, int]:
         """Visual homing on image ``k`` of ``edge``: ``(v, w, canonical target index)``."""
@@ -488,18 +526,9 @@ class RobotSession:
         v, w = rotate_command(mp)
         return v, w, target, Action.rotate(edge)
 
-    def _advance_task(
-        self,
-        task: Task,
-        summary: BeliefSummary,
-        decision: Decision,
-        command: Command,
-        timestamp: float,
-        wall: float,
-        dt: float,
-    ) -> None:
+    def _track_approach(self, task: Task, command: Command, dt: float) -> None:
+        """Count the robot time spent following a taught edge into the goal (``approach_s``)."""
         p = self.params
-        task.steps += 1
         edge = command.action.edge
         kind = command.action.kind
         if (
@@ -507,20 +536,68 @@ class RobotSession:
             and edge is not None
             and self.runtime.graph.edges[edge].target == task.goal
         ):
+            if edge != task.approach_edge:
+                task.approach_edge, task.dock_m = edge, 0.0
             task.approach_s += dt
             task.approached = task.approached or task.approach_s >= p.approach_s
         elif kind != ActionKind.DO_NOTHING and self.needs_approach(task.goal):
             # the approach must be the robot's last move: one that turned or explored since
             # may have lost its place and has to come in along an edge again
             task.approach_s, task.approached = 0.0, False
+            task.approach_edge, task.dock_m = None, 0.0
+
+    def _belief_arrived(self, task: Task, summary: BeliefSummary) -> bool:
+        """Whether the belief says the robot is at the goal (see ``arrive_mass``)."""
+        p = self.params
         at_goal = float(summary.belief[self.runtime.at_location[task.goal]].sum())
         agrees = summary.evidence >= p.tracker.localised_evidence
-        there = (
+        return (
             at_goal >= p.arrive_mass
             and agrees
             and task.approached
-            and task.steps >= p.arrive_min_steps
+            and task.steps + 1 >= p.arrive_min_steps
         )
+
+    def _dock(
+        self, task: Task, features: ImageFeatures, depth: npt.ArrayLike | None, dt: float
+    ) -> tuple[Command | None, bool]:
+        """The view's word on an arrival the belief has called (see ``NavigationParams.dock``).
+
+        Returns ``(command, confirmed)``: the command moves the robot onto the spot (``None``:
+        keep the one decided), ``confirmed`` whether it stands there (or cannot tell)."""
+        p = self.params
+        mp = p.motion
+        edge = task.approach_edge
+        if not p.dock or edge is None:
+            return None, True
+        target = self.runtime.edge_image(edge, self.runtime.graph.edges[edge].n_images - 1)
+        if task.dock_log_scales:  # the last frame's command was a docking move
+            # counted as commanded, not as driven: a robot pressed against something gives up too
+            task.dock_m += p.motion.dock_v * dt
+        fit = homing_scale(features, self.runtime.features[target])
+        if fit is None or fit.inliers < p.dock_min_inliers:
+            task.dock_log_scales.clear()
+            return None, True
+        task.dock_log_scales.append(float(np.log(fit.scale)))
+        del task.dock_log_scales[:-3]
+        log_scale = float(np.median(task.dock_log_scales))
+        short = log_scale > np.log1p(p.dock_scale_tol)
+        past = log_scale < np.log1p(-p.dock_scale_tol)
+        if task.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
+            task.dock_log_scales.clear()
+            return Command(0.0, 0.0, Action.navigate(edge), target), True
+        w = float(np.clip(mp.homing_gain * fit.offset, -mp.max_w, mp.max_w))
+        if short:
+            v_cmd, w = self._avoid(mp.dock_v, w, depth)
+            return Command(v_cmd, w, Action.navigate(edge), target), False
+        # backing up the way it came: the tracker has no backward motion, so it holds still
+        return Command(-mp.dock_v, w, Action.do_nothing(), target), False
+
+    def _advance_task(
+        self, task: Task, there: bool, decision: Decision, timestamp: float, wall: float
+    ) -> None:
+        p = self.params
+        task.steps += 1
         task.arrive_streak = task.arrive_streak + 1 if there else 0
         explore = decision.action.kind == ActionKind.EXPLORE
         task.explore_streak = task.explore_streak + 1 if explore else 0

@@ -11,11 +11,20 @@ Pipeline, one module per step:
    two-pass query (weighted signature distance to every image, then local features and an optional
    RANSAC check on the candidates) and the learned signature weights.
 3. :mod:`server.vision.homing` - horizontal offset between the current frame and a target image,
-   for visual homing along an edge (001 section 7.2).
+   for visual homing along an edge (001 section 7.2), and the scale between them (how far short
+   of or past the target's viewpoint the robot stands) for the last metre onto a place.
 """
 
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.homing import HomingParams, HomingResult, homing_offset
+from server.vision.homing import (
+    HomingParams,
+    HomingResult,
+    ScaleParams,
+    ScaleResult,
+    homing_offset,
+    homing_scale,
+    match_features,
+)
 from server.vision.index import (
     EngineParams,
     Similarity,
@@ -30,10 +39,14 @@ __all__ = [
     "HomingParams",
     "HomingResult",
     "ImageFeatures",
+    "ScaleParams",
+    "ScaleResult",
     "Similarity",
     "TourIndex",
     "default_weights",
     "extract",
     "homing_offset",
+    "homing_scale",
     "learn_weights",
+    "match_features",
 ]

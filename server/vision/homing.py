@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from server.vision.features import FeatureParams, ImageFeatures, descriptor_distances
 
@@ -53,24 +54,24 @@ class HomingResult:
     offset_px: float
 
 
-def homing_offset(
+def match_features(
     current: ImageFeatures,
     target: ImageFeatures,
     *,
     params: HomingParams = HomingParams(),
-) -> HomingResult | None:
-    """Horizontal offset between ``current`` and ``target`` from mutual nearest-neighbour
-    matches (ratio test, distance and vertical-consistency checks).
-
-    Returns ``None`` when fewer than ``params.min_matches`` matches survive.
-    """
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Matched keypoints ``(src, dst)``, each ``(n, 2)`` pixels at the working size: ``src`` in
+    ``current``, ``dst`` in ``target``. Mutual nearest neighbours that pass the ratio test,
+    the distance limit and the vertical-consistency check, strongest corners of ``current``
+    first."""
     if current.descriptor != target.descriptor:
         raise ValueError(
             f"cannot match {current.descriptor} against {target.descriptor} features; "
             "extract both with the same FeatureParams"
         )
+    empty = np.zeros((0, 2), np.float32)
     if current.n_keypoints == 0 or target.n_keypoints == 0:
-        return None
+        return empty, empty
     dist = descriptor_distances(
         current.descriptors, target.descriptors, current.descriptor, params.features
     )
@@ -82,14 +83,125 @@ def homing_offset(
     if dist.shape[1] >= 2:
         part = np.partition(dist, 1, axis=1)
         keep &= part[:, 0] < params.ratio * np.maximum(part[:, 1], 1e-9)
-    width, height = current.size
-    src = current.keypoints[keep]
-    dst = target.keypoints[fwd[keep]]
+    height = current.size[1]
+    src = current.keypoints[keep].astype(np.float32)
+    dst = target.keypoints[fwd[keep]].astype(np.float32)
     dy_ok = np.abs(dst[:, 1] - src[:, 1]) <= params.max_dy * height
-    src, dst = src[dy_ok], dst[dy_ok]
+    return src[dy_ok], dst[dy_ok]
+
+
+def homing_offset(
+    current: ImageFeatures,
+    target: ImageFeatures,
+    *,
+    params: HomingParams = HomingParams(),
+) -> HomingResult | None:
+    """Horizontal offset between ``current`` and ``target`` from mutual nearest-neighbour
+    matches (ratio test, distance and vertical-consistency checks).
+
+    Returns ``None`` when fewer than ``params.min_matches`` matches survive.
+    """
+    src, dst = match_features(current, target, params=params)
     if len(src) < params.min_matches:
         return None
+    width = current.size[0]
     dx = float(np.mean(dst[:, 0] - src[:, 0]))
     return HomingResult(
         offset=float(np.clip(dx / width, -1.0, 1.0)), n_matches=len(src), offset_px=dx
+    )
+
+
+@dataclass(frozen=True)
+class ScaleParams:
+    """How :func:`homing_scale` fits a similarity transform to the matches.
+
+    Attributes:
+        hypotheses_from (24): hypotheses are the transforms through every pair of the first
+            this many matches (the strongest corners of the current frame): at most 276.
+        min_separation_px (12): a pair closer than this in the current frame gives no hypothesis
+            (its scale would be noise).
+        inlier_px (3.0): a match agrees with a transform when it lands within this many pixels.
+        max_rotation (0.15 rad): hypotheses that roll the image more than this are rejected
+            (the camera does not roll).
+        scale_range ((0.4, 2.5)): hypotheses with a scale outside this range are rejected.
+    """
+
+    hypotheses_from: int = 24
+    min_separation_px: float = 12.0
+    inlier_px: float = 3.0
+    max_rotation: float = 0.15
+    scale_range: tuple[float, float] = (0.4, 2.5)
+
+
+@dataclass(frozen=True)
+class ScaleResult:
+    """A similarity transform ``target ~ scale * R(rotation) * current + shift`` between views.
+
+    Attributes:
+        scale: how much larger the target image shows the matched scene (> 1: the target was
+            taken nearer to what the camera sees, i.e. further forward along the view).
+        rotation: image roll of the fit, radians.
+        inliers: matches within ``ScaleParams.inlier_px`` of the fit.
+        n_matches: matches the fit was chosen from.
+        offset: mean horizontal displacement ``x_target - x_current`` of the inliers over the
+            image width (as :attr:`HomingResult.offset`).
+    """
+
+    scale: float
+    rotation: float
+    inliers: int
+    n_matches: int
+    offset: float
+
+
+def homing_scale(
+    current: ImageFeatures,
+    target: ImageFeatures,
+    *,
+    params: HomingParams = HomingParams(),
+    fit: ScaleParams = ScaleParams(),
+) -> ScaleResult | None:
+    """Scale between ``current`` and ``target``: how far forward or back of the target's
+    viewpoint the camera stands, as seen from the size of what both see.
+
+    Deterministic consensus fit: every pair among the first ``fit.hypotheses_from`` matches
+    defines a similarity transform (points as complex numbers: ``q = a p + b``); the one that
+    most matches agree with wins and is refitted on its inliers by least squares. ``None``
+    when fewer than ``params.min_matches`` matches or no acceptable hypothesis.
+    """
+    src, dst = match_features(current, target, params=params)
+    n = len(src)
+    if n < max(params.min_matches, 2):
+        return None
+    p = src[:, 0].astype(np.float64) + 1j * src[:, 1]
+    q = dst[:, 0].astype(np.float64) + 1j * dst[:, 1]
+    i, j = np.triu_indices(min(n, fit.hypotheses_from), k=1)
+    dp = p[j] - p[i]
+    ok = np.abs(dp) >= fit.min_separation_px
+    i, j, dp = i[ok], j[ok], dp[ok]
+    if len(i) == 0:
+        return None
+    a = (q[j] - q[i]) / dp
+    scale, roll = np.abs(a), np.abs(np.angle(a))
+    ok = (roll <= fit.max_rotation) & (scale >= fit.scale_range[0]) & (scale <= fit.scale_range[1])
+    if not ok.any():
+        return None
+    a, b = a[ok], (q[i] - a * p[i])[ok]
+    # (hypotheses, matches) residuals, pixels
+    agree = np.abs(a[:, None] * p[None, :] + b[:, None] - q[None, :]) <= fit.inlier_px
+    best = int(np.argmax(agree.sum(axis=1)))
+    inl = agree[best]
+    if inl.sum() >= 2:  # least-squares similarity on the inliers
+        pc, qc = p[inl] - p[inl].mean(), q[inl] - q[inl].mean()
+        a_best = complex(np.vdot(pc, qc) / max(float(np.vdot(pc, pc).real), 1e-9))
+    else:
+        a_best = complex(a[best])
+    width = current.size[0]
+    dx = float(np.mean(dst[inl, 0] - src[inl, 0])) if inl.any() else 0.0
+    return ScaleResult(
+        scale=float(abs(a_best)),
+        rotation=float(np.angle(a_best)),
+        inliers=int(inl.sum()),
+        n_matches=n,
+        offset=float(np.clip(dx / width, -1.0, 1.0)),
     )

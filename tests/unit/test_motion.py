@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from server.motion import (
     MotionParams,
     avoid_obstacles,
+    avoid_side,
     explore_command,
     navigate_command,
     ray_angles,
@@ -119,3 +120,24 @@ def test_facing_a_wall_beside_a_doorway_turns_toward_the_doorway() -> None:
     # mirrored: the doorway on the left
     v, w = avoid_obstacles(0.3, 0.0, ranges[::-1], P)
     assert w == pytest.approx(P.max_w)
+
+
+def test_avoidance_keeps_turning_the_way_it_chose() -> None:
+    """Facing an obstacle head-on, the more open side flips with every small turn; turning
+    toward it each frame would swing the robot back and forth in front of the obstacle."""
+    angles = ray_angles(31, P.depth_fov_deg)
+    ahead = 0.3 / np.cos(angles)  # a wall square ahead
+    leans_left = np.where(angles > 0, ahead + 0.1, ahead)
+    leans_right = leans_left[::-1]
+    assert avoid_side(leans_left, P) == 1 and avoid_side(leans_right, P) == -1
+    side = avoid_side(leans_left, P)
+    for profile in [leans_right, leans_left, leans_right]:
+        side = avoid_side(profile, P, side)
+        assert side == 1
+        _, w = avoid_obstacles(0.3, 0.0, profile, P, side=side)
+        assert w > 0
+    # a side much more open than the one chosen wins; nothing near forgets the choice
+    door_right = np.where(angles < 0, 3.0, ahead)
+    assert avoid_side(door_right, P, previous=1) == -1
+    assert avoid_side(np.full(31, 3.0), P, previous=1) == 0
+    assert avoid_side(None, P, previous=-1) == 0

@@ -6,15 +6,16 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "vision"))
-from vision_testkit import scene
+from vision_testkit import scene, zoomed
 
 from server.belief.model import ActionKind
 from server.domain import Edge, Location, TourGraph
-from server.session import NavigationParams, RobotSession, Task, TourRuntime
+from server.session import Command, NavigationParams, RobotSession, Task, TourRuntime
 from server.vision.features import extract
 
 A, B, C, D = range(4)
@@ -169,3 +170,86 @@ def test_the_approach_must_be_the_last_move_before_arriving() -> None:
         kinds.append(s.step(scene(int(i)), timestamp=t, v=0.0).command.action.kind)
     assert any(k not in (ActionKind.NAVIGATE, ActionKind.DO_NOTHING) for k in kinds)
     assert not task.approached and task.approach_s == 0.0
+
+
+def _come_in_to_b(
+    s: RobotSession, view: object, steps: int = 120, *, blocked: bool = False
+) -> tuple[Task, list[Command], list[float]]:
+    """Carry the robot along A -> B, then feed ``view(driven_m)``: the frame after driving
+    ``driven_m`` metres (by the commands it was given) beyond the end of the edge. Returns the
+    task, the commands after the edge and the metres driven when each was given."""
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    t = 0.0
+    for i in GRAPH.edges[0].image_ids:
+        t += 0.5
+        s.step(scene(int(i)), timestamp=t, v=0.3)
+    driven, commands, where = 0.0, [], []
+    for _ in range(steps):
+        if task.state != "underway":
+            break
+        v = 0.0 if blocked else rec_v(s)
+        driven += 0.1 * v
+        t += 0.1
+        rec = s.step(view(driven), timestamp=t, v=v)  # type: ignore[operator]
+        commands.append(rec.command)
+        where.append(driven)
+    return task, commands, where
+
+
+LAST_A_TO_B = scene(int(GRAPH.edges[0].image_ids[-1]))
+
+
+def test_a_robot_that_stopped_short_of_the_place_creeps_on_until_the_view_agrees() -> None:
+    # the scene looks 20 % smaller than in the last taught image until 0.3 m further on
+    task, commands, where = _come_in_to_b(
+        session(), lambda m: LAST_A_TO_B if m >= 0.3 else zoomed(LAST_A_TO_B, 1 / 1.2)
+    )
+    dock_v = NavigationParams().motion.dock_v
+    creeping = [c for c in commands if c.v == pytest.approx(dock_v)]
+    assert creeping and all(c.action.kind == ActionKind.NAVIGATE for c in creeping)
+    assert task.state == "arrived"
+    assert where[-1] >= 0.3  # not before the view agreed
+
+
+def test_a_robot_that_went_past_the_place_backs_up_until_the_view_agrees() -> None:
+    task, commands, where = _come_in_to_b(
+        session(), lambda m: LAST_A_TO_B if m <= -0.3 else zoomed(LAST_A_TO_B, 1.2)
+    )
+    backing = [c for c in commands if c.v < 0]
+    assert backing and all(c.action.kind == ActionKind.DO_NOTHING for c in backing)
+    assert task.state == "arrived" and where[-1] <= -0.3
+
+
+def test_without_docking_the_belief_alone_arrives_short_of_the_place() -> None:
+    task, commands, where = _come_in_to_b(
+        session(dock=False), lambda m: LAST_A_TO_B if m >= 0.3 else zoomed(LAST_A_TO_B, 1 / 1.2)
+    )
+    assert task.state == "arrived" and where[-1] < 0.3
+    dock_v = NavigationParams().motion.dock_v
+    assert not any(abs(c.v) == pytest.approx(dock_v) for c in commands)
+
+
+def test_docking_gives_up_after_dock_max_m_and_arrives() -> None:
+    task, _, where = _come_in_to_b(session(dock_max_m=0.4), lambda m: zoomed(LAST_A_TO_B, 1 / 1.2))
+    assert task.state == "arrived"
+    assert 0.4 <= where[-1] <= 0.4 + 0.1 * 0.12 * 4
+
+
+def test_a_robot_that_cannot_move_gives_up_docking_as_soon() -> None:
+    task, commands, _ = _come_in_to_b(
+        session(dock_max_m=0.4), lambda m: zoomed(LAST_A_TO_B, 1 / 1.2), blocked=True
+    )
+    assert task.state == "arrived"
+    dock_v = NavigationParams().motion.dock_v
+    creeping = sum(c.v == pytest.approx(dock_v) for c in commands)
+    assert 0.4 / dock_v / 0.1 - 1 <= creeping <= 0.4 / dock_v / 0.1 + 1
+
+
+def test_a_view_that_cannot_tell_leaves_the_arrival_to_the_belief() -> None:
+    # blurred: the place still looks right overall, but no corners to measure a scale on
+    blurred = cv2.GaussianBlur(zoomed(LAST_A_TO_B, 1 / 1.2), (0, 0), 4)
+    task, commands, _ = _come_in_to_b(session(), lambda m: blurred)
+    assert task.state == "arrived"
+    dock_v = NavigationParams().motion.dock_v
+    assert not any(abs(c.v) == pytest.approx(dock_v) for c in commands)

@@ -1,12 +1,13 @@
-"""Visual homing offset."""
+"""Visual homing: the offset and the scale between the current frame and a target image."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
-from vision_testkit import scene, shifted
+from vision_testkit import scene, shifted, zoomed
 
-from server.vision import extract, homing_offset
+from server.vision import extract, homing_offset, homing_scale, match_features
 
 
 @pytest.mark.parametrize("dx", [-30, -10, 15, 40])
@@ -31,3 +32,49 @@ def test_no_features_gives_none() -> None:
     blank = extract(np.full((240, 320, 3), 90, np.uint8))
     assert homing_offset(blank, extract(scene(13))) is None
     assert homing_offset(extract(scene(13)), blank) is None
+
+
+@pytest.mark.parametrize("factor", [0.8, 0.9, 1.0, 1.12, 1.25])
+def test_scale_follows_a_zoom(factor: float) -> None:
+    img = scene(21)
+    res = homing_scale(extract(img), extract(zoomed(img, factor)))
+    assert res is not None and res.inliers >= 10
+    assert res.scale == pytest.approx(factor, rel=0.02)
+    assert abs(res.rotation) < 0.02
+    assert abs(res.offset) < 0.02  # zoomed about the centre: nothing to steer
+
+
+def test_swapping_the_views_inverts_the_scale() -> None:
+    near, far = extract(zoomed(scene(22), 1.2)), extract(scene(22))
+    there = homing_scale(far, near)
+    back = homing_scale(near, far)
+    assert there is not None and back is not None
+    assert there.scale * back.scale == pytest.approx(1.0, rel=0.03)
+
+
+def test_scale_agrees_with_opencv_on_the_same_matches() -> None:
+    """Naive reference: OpenCV's RANSAC similarity fit on the matches the scale is fitted to."""
+    img = scene(23)
+    cur, tgt = extract(shifted(img, 12)), extract(zoomed(img, 1.15))
+    src, dst = match_features(cur, tgt)
+    ref, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0)
+    res = homing_scale(cur, tgt)
+    assert res is not None and ref is not None
+    assert res.scale == pytest.approx(float(np.hypot(ref[0, 0], ref[1, 0])), rel=0.02)
+
+
+def test_scale_ignores_a_minority_of_wrong_matches() -> None:
+    """Half the target is replaced by another scene: the fit rests on the other half."""
+    img = scene(24)
+    target = zoomed(img, 1.15)
+    target[:, 160:] = scene(25)[:, 160:]
+    res = homing_scale(extract(img), extract(target))
+    assert res is not None and res.scale == pytest.approx(1.15, rel=0.03)
+
+
+def test_scale_of_unrelated_or_blank_views_is_none_or_weak() -> None:
+    blank = extract(np.full((240, 320, 3), 90, np.uint8))
+    assert homing_scale(blank, extract(scene(26))) is None
+    assert homing_scale(extract(scene(26)), blank) is None
+    other = homing_scale(extract(scene(26)), extract(scene(27)))
+    assert other is None or other.inliers < 10

@@ -34,6 +34,14 @@ def shifted(img: np.ndarray, dx: int) -> np.ndarray:
     return cv2.warpAffine(img, m, (img.shape[1], img.shape[0]), borderMode=cv2.BORDER_REPLICATE)
 
 
+def zoomed(img: np.ndarray, factor: float) -> np.ndarray:
+    """``img`` magnified ``factor`` times about its centre (border replicated): what a camera
+    a little further forward (> 1) or back (< 1) would see of a flat scene."""
+    h, w = img.shape[:2]
+    m = cv2.getRotationMatrix2D((w / 2, h / 2), 0.0, factor)
+    return cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+
+
 def index_of(
     images: list[np.ndarray], states: list[int], params: EngineParams | None = None
 ) -> tuple[TourIndex, list[ImageFeatures]]:
