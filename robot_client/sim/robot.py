@@ -95,6 +95,11 @@ class SimulatedRobot:
             frame = np.clip(noisy, 0, 255).astype(np.uint8)
         return frame
 
+    def reseed(self, seed: int) -> None:
+        """Restart every noise source from ``seed`` (the pose, clock and odometer carry on):
+        a benchmark makes each trial's noise independent of how the trials before it went."""
+        self._rng = np.random.default_rng(seed)
+
     def close(self) -> None:
         """Stop and release the camera. Safe to call twice. The world stays open."""
         self.stop()

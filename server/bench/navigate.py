@@ -3,7 +3,9 @@
 One teaching tour (the default guide route, taught in the ``same`` home), then N trials in the
 chosen condition, each from a random free pose (every fourth one inside the look-alike rooms)
 to a random place. The robot is carried between trials without being told: every trial starts
-with a kidnapping. Success = the robot says "arrived" within 0.5 m of the place.
+with a kidnapping. Success = the robot says "arrived" within 0.5 m of the place. Each trial's
+start, goal and noise depend only on the seed and the trial number (a closed loop is chaotic:
+otherwise one trial that went differently would change every later one).
 """
 
 from __future__ import annotations
@@ -71,6 +73,9 @@ def run(args: argparse.Namespace) -> int:
             robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
             for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
                 robot.teleport(_start_pose(world, plan, np_rng, trial))
+                # every trial seeds its own noise: what happens in one trial does not change
+                # the noise of the next, so two versions of the code compare trial by trial
+                robot.reseed(args.seed * 1000 + trial)
                 goal = rng.choice(names)
                 result = run_trial(
                     client,

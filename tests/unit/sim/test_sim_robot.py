@@ -70,6 +70,21 @@ def test_same_seed_same_commands_same_poses_and_frames(world: SimWorld, plan: Fl
     assert pc != pa  # the seed matters (actuation noise)
 
 
+def test_reseeding_makes_what_follows_independent_of_what_came_before(
+    world: SimWorld, plan: FloorPlan
+) -> None:
+    a = SimulatedRobot(world, _start(plan), seed=5)
+    b = SimulatedRobot(world, _start(plan), seed=9)
+    _drive(b, frames=False)  # b has a different past
+    for r in (a, b):
+        r.teleport(_start(plan))
+        r.reseed(7)
+    pa, fa = _drive(a, frames=True)
+    pb, fb = _drive(b, frames=True)
+    assert pa == pb
+    assert all(np.array_equal(x, y) for x, y in zip(fa, fb, strict=True))
+
+
 def test_full_speed_into_a_wall_never_crosses_it(world: SimWorld, plan: FloorPlan) -> None:
     params = RobotParams()
     # bedroom, heading straight west into the outer wall (inner surface x = 0.06), then
