@@ -35,7 +35,7 @@ from server.motion import (
 from server.policy.costs import CostParams, cost_to_goal
 from server.policy.voting import Decision, PolicyParams, decide
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.homing import homing_offset, homing_scale
+from server.vision.homing import ScaleResult, homing_offset, homing_scale
 from server.vision.index import EngineParams, Similarity, TourIndex
 
 FloatArray = npt.NDArray[np.float64]
@@ -68,8 +68,9 @@ class NavigationParams:
       off). Waived for a goal with no taught edge into it or out of it. 0 disables it.
     * ``dock`` (True), ``dock_scale_tol`` (0.06), ``dock_min_inliers`` (10), ``dock_max_m``
       (1.5 m), ``dock_reverse`` (True): when the belief says "arrived", the view must agree. The
-      frame is matched against the last image of the edge the robot came in on
-      (:func:`server.vision.homing.homing_scale`): the scene looks larger in that image when
+      frame is matched against the images taught at the end of the edge the robot came in on
+      (from the last one taken while driving forward; the best-matching one counts,
+      :func:`server.vision.homing.homing_scale`): the scene looks larger in that image when
       the robot stopped short of the place and smaller when it went past it. While the median
       of the last three scales is more than ``dock_scale_tol`` away from 1, the robot creeps
       forward (or backs up, with ``dock_reverse``) at ``MotionParams.dock_v``, steered by the
@@ -157,6 +158,12 @@ class TourRuntime:
         # index along each edge of the image where the taught robot started to move forward
         self.departure = tuple(
             int(np.argmax(e.v > 0.05)) if np.any(e.v > 0.05) else 0 for e in graph.edges
+        )
+        # index along each edge of the last image taught while moving forward (the robot was
+        # at the place from there on, maybe turning to face the way the guide named it)
+        self.arrival = tuple(
+            int(len(e.v) - 1 - np.argmax(e.v[::-1] > 0.05)) if np.any(e.v > 0.05) else 0
+            for e in graph.edges
         )
         # for every edge image, the index of the first image at or after it that moves
         self._moving = tuple(_next_moving(e.v, e.w) for e in graph.edges)
@@ -570,11 +577,10 @@ class RobotSession:
         edge = task.approach_edge
         if not p.dock or edge is None:
             return None, True
-        target = self.runtime.edge_image(edge, self.runtime.graph.edges[edge].n_images - 1)
         if task.dock_log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             task.dock_m += p.motion.dock_v * dt
-        fit = homing_scale(features, self.runtime.features[target])
+        target, fit = self._place_view(edge, features)
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.dock_log_scales.clear()
             return None, True
@@ -592,6 +598,24 @@ class RobotSession:
             return Command(v_cmd, w, Action.navigate(edge), target), False
         # backing up the way it came: the tracker has no backward motion, so it holds still
         return Command(-mp.dock_v, w, Action.do_nothing(), target), False
+
+    def _place_view(
+        self, edge: int, features: ImageFeatures, most: int = 8
+    ) -> tuple[int, ScaleResult | None]:
+        """The image taught at the end of ``edge`` that the frame matches best (most inliers
+        of the scale fit) and that fit: the images from the last one taught while moving
+        forward to the end (where the guide may have turned to name the place), at most
+        ``most`` of them evenly spaced."""
+        rt = self.runtime
+        last = rt.graph.edges[edge].n_images - 1
+        ks = np.unique(np.linspace(rt.arrival[edge], last, most).round().astype(int))
+        best: tuple[int, ScaleResult | None] = (rt.edge_image(edge, last), None)
+        for k in ks:
+            target = rt.edge_image(edge, int(k))
+            fit = homing_scale(features, rt.features[target])
+            if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
+                best = (target, fit)
+        return best
 
     def _advance_task(
         self, task: Task, there: bool, decision: Decision, timestamp: float, wall: float

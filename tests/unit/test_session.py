@@ -253,3 +253,23 @@ def test_a_view_that_cannot_tell_leaves_the_arrival_to_the_belief() -> None:
     assert task.state == "arrived"
     dock_v = NavigationParams().motion.dock_v
     assert not any(abs(c.v) == pytest.approx(dock_v) for c in commands)
+
+
+def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() -> None:
+    """An edge that ends with the guide stopping and turning to name the place: docking may
+    compare with any image from the last forward one on."""
+    n = 10
+    v = np.full(n, 0.3)
+    v[7:] = 0.0  # stopped for the last three images (turning on the spot)
+    ids = iter(range(2000, 3000))
+    locs = tuple(Location(name, (next(ids),)) for name in "AB")
+    ab = Edge(A, B, tuple(next(ids) for _ in range(n)), np.arange(n) * 0.5, v, np.zeros(n))
+    graph = TourGraph(locs, (ab,))
+    feats = [extract(scene(int(i))) for i in graph.image_ids]
+    rt = TourRuntime(graph, feats, NavigationParams())
+    assert rt.arrival == (6,)
+    s = RobotSession("rover", rt)
+    turned = scene(int(ab.image_ids[8]))  # the view once the guide had turned
+    target, fit = s._place_view(0, extract(turned))
+    assert target == rt.edge_image(0, 8)
+    assert fit is not None and fit.scale == pytest.approx(1.0, abs=0.01)
