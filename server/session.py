@@ -230,7 +230,7 @@ class Task:
     approach_s: float = 0.0  # robot time spent following a taught edge into the goal
     approached: bool = False
     approach_edge: int | None = None  # the edge of that approach
-    dock_m: float = 0.0  # metres driven docking since the approach began
+    dock_m: float = 0.0  # metres of docking moves commanded since the approach began
     dock_log_scales: list[float] = field(default_factory=list)  # last few log scales
 
     def end(self, state: str, reason: str | None, now: float) -> None:

@@ -11,6 +11,7 @@ otherwise one trial that went differently would change every later one).
 from __future__ import annotations
 
 import argparse
+import json
 import random
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--max-steps", type=int, default=1500, help="frames per trial at most")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument(
+        "--trace",
+        type=Path,
+        default=None,
+        help="write every step of every trial (true pose, command, top beliefs) to "
+        "DIR/trial_NNN.jsonl, to see why a trial failed",
+    )
 
 
 def _start_pose(world: Any, plan: Any, rng: np.random.Generator, trial: int) -> Any:
@@ -45,6 +53,33 @@ def _start_pose(world: Any, plan: Any, rng: np.random.Generator, trial: int) -> 
             if not world.collides(x, y, 0.3):
                 return Pose(x, y, rng.uniform(-np.pi, np.pi))
     return world.free_random_pose(rng)
+
+
+def _tracer(robot: Any, out: list[dict[str, Any]]) -> Any:
+    """A step hook that records the true pose, the command and the top beliefs."""
+
+    def hook(step: int, result: Any) -> None:
+        pose, c = robot.pose, result.command
+        out.append(
+            {
+                "step": step,
+                "t": round(robot.now(), 2),
+                "pose": [round(pose.x, 3), round(pose.y, 3), round(pose.theta, 3)],
+                "action": c.action,
+                "edge": c.edge,
+                "target_image": c.target_image_id,
+                "v": round(c.v, 3),
+                "w": round(c.w, 3),
+                "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
+            }
+        )
+
+    return hook
+
+
+def _write_trace(path: Path, rows: list[dict[str, Any]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
                 # the noise of the next, so two versions of the code compare trial by trial
                 robot.reseed(args.seed * 1000 + trial)
                 goal = rng.choice(names)
+                trace: list[dict[str, Any]] = []
                 result = run_trial(
                     client,
                     "bench",
@@ -85,7 +121,10 @@ def run(args: argparse.Namespace) -> int:
                     goal,
                     tour=graph,
                     max_steps=args.max_steps,
+                    on_step=None if args.trace is None else _tracer(robot, trace),
                 )
+                if args.trace is not None:
+                    _write_trace(args.trace / f"trial_{trial:03d}.jsonl", trace)
                 rows.append({"trial": trial, **result.row()})
                 tqdm.write(
                     f"{trial:3d} -> {goal:<12} {'ok' if result.success else result.state:9}"
