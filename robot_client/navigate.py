@@ -30,6 +30,10 @@ class LoopParams:
     retry_s: float = 0.2
     max_retry_s: float = 2.0
     max_retry_total_s: float = 60.0
+    wait_for_answer: bool = False
+    """Wait for the server's answer however long it takes. For a simulated robot, whose clock
+    stands still while it waits (so a busy machine cannot change what it does); a real robot
+    waits at most the time-to-live of the command it is driving on."""
 
 
 @dataclass
@@ -76,7 +80,7 @@ def drive(
                 v=v,
                 w=w,
                 depth=profile,
-                timeout=None if last is None else last.command.ttl_s,
+                timeout=None if last is None or params.wait_for_answer else last.command.ttl_s,
             )
         except httpx.TransportError:
             motors.stop()  # never drive blind while the server is away

@@ -128,7 +128,7 @@ def run_trial(
         motors=robot,
         clock=robot,
         depth=robot,
-        params=LoopParams(max_steps=max_steps),
+        params=LoopParams(max_steps=max_steps, wait_for_answer=True),
         on_step=on_step,
     )
     state: str = "underway"
