@@ -135,12 +135,20 @@ def rotate_command(params: MotionParams, *, toward: float | None = None) -> tupl
     return 0.0, float(np.clip(w, -params.spin_w, params.spin_w))
 
 
+def _ranges(depth: npt.ArrayLike | None) -> FloatArray | None:
+    """The depth profile as ``(n_rays,)`` metres, a ray that saw nothing (inf, nan) as far
+    away; ``None`` without a depth sensor or with an empty profile."""
+    if depth is None or len(np.atleast_1d(depth)) == 0:
+        return None
+    ranges = np.asarray(depth, dtype=np.float64)
+    return np.where(np.isfinite(ranges), ranges, 1e3)
+
+
 def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[float, float]:
     """Head for the most open direction of the depth profile; without one, creep and turn."""
-    if depth is None or len(np.atleast_1d(depth)) == 0:
+    ranges = _ranges(depth)
+    if ranges is None:
         return params.explore_v, params.spin_w / 2
-    ranges = np.asarray(depth, dtype=np.float64)
-    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
     # smooth so a single long ray through a gap does not win over a wide open side
     k = max(1, len(ranges) // 8)
     smooth = np.convolve(ranges, np.ones(k) / k, mode="same")
@@ -162,10 +170,9 @@ def avoid_side(depth: npt.ArrayLike | None, params: MotionParams, previous: int 
     the robot toward whichever side is momentarily more open, which swings it back and forth
     facing the obstacle (the simulated robot sat for minutes in front of an armchair so).
     """
-    if depth is None or len(np.atleast_1d(depth)) == 0:
+    ranges = _ranges(depth)
+    if ranges is None:
         return 0
-    ranges = np.asarray(depth, dtype=np.float64)
-    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
     nearest = float(ranges.min())
     if nearest >= params.avoid_start_m:
         return 0
@@ -191,10 +198,9 @@ def avoid_obstacles(
     cannot hit anything by turning, and blending would cancel the turn it needs to find its
     way out.
     """
-    if depth is None or len(np.atleast_1d(depth)) == 0 or v <= 0.0:
+    ranges = _ranges(depth)
+    if ranges is None or v <= 0.0:
         return v, w
-    ranges = np.asarray(depth, dtype=np.float64)
-    ranges = np.where(np.isfinite(ranges), ranges, 1e3)
     nearest = float(ranges.min())
     span = params.avoid_start_m - params.avoid_full_m
     weight = float(np.clip((params.avoid_start_m - nearest) / span, 0.0, 1.0))

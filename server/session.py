@@ -579,7 +579,7 @@ class RobotSession:
             return None, True
         if task.dock_log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
-            task.dock_m += p.motion.dock_v * dt
+            task.dock_m += mp.dock_v * dt
         target, fit = self._place_view(edge, features)
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.dock_log_scales.clear()
@@ -592,7 +592,7 @@ class RobotSession:
         if task.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
             task.dock_log_scales.clear()
             return Command(0.0, 0.0, Action.navigate(edge), target), True
-        w = float(np.clip(mp.homing_gain * fit.offset, -mp.max_w, mp.max_w))
+        _, w = navigate_command(fit.offset, taught_v=0.0, taught_w=0.0, params=mp)
         if short:
             v_cmd, w = self._avoid(mp.dock_v, w, depth)
             return Command(v_cmd, w, Action.navigate(edge), target), False
