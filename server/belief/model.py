@@ -139,6 +139,11 @@ class TransitionParams:
     """Location -> the active edge when it leaves this location."""
     navigate_loc_to_other_edges: float = 0.05
     """Location -> its other outgoing edges (total)."""
+    navigate_dead_end: float = 0.2
+    """Location without an outgoing edge -> everywhere, spread like the prior (total; beyond
+    001). Driving on from where the tour ends leads somewhere it does not cover; without this,
+    such a location keeps all its mass under Navigate and collects every stray bit of it (on
+    Nordland the route's last location held the belief, wrongly, for up to 17 frames)."""
     navigate_edge_to_sibling: float = 0.01
     """Edge -> edges sharing its origin or its destination (total, spread uniformly)."""
     navigate_stall: float = 0.1
@@ -199,6 +204,7 @@ class TransitionParams:
             + self.rotate_head_to_origin,
             "navigate (location)": self.navigate_loc_to_active_edge
             + self.navigate_loc_to_other_edges,
+            "navigate (dead end)": self.navigate_dead_end,
             "navigate (edge)": self.navigate_exit + self.navigate_edge_to_sibling,
             "explore (location)": self.explore_loc_to_out_edges + self.explore_loc_to_in_edges,
             "explore (edge)": self.explore_edge_to_endpoints + self.explore_edge_to_related,
@@ -440,6 +446,7 @@ class BeliefModel:
         sizes = np.concatenate([np.ones(self.n_locations), np.maximum(self.edge_len, 1)])
         self.prior: FloatArray = (per_state / sizes)[self.fine_state]
         self.n_valid_states = n_ok
+        self._valid_states: IntArray = np.flatnonzero(state_ok).astype(np.int64)
         # teaching-run distances per image
         self.metres_per_image, self.seconds_per_image = _edge_distances(
             graph, self.params.turn_radius_m
@@ -582,6 +589,10 @@ class BeliefModel:
                 split([j for j in outs if j != g], to_other, "head")
             else:
                 split(outs, to_other, "head")
+            if kind is ActionKind.NAVIGATE and not outs and p.navigate_dead_end > 0:
+                # a dead end: the mass that drives on goes anywhere, like the prior
+                valid = self._valid_states
+                moves.extend((int(s), p.navigate_dead_end / len(valid), "uniform") for s in valid)
         elif kind is ActionKind.EXPLORE:
             split(outs, p.explore_loc_to_out_edges, "head")
             split(self.in_edges[k], p.explore_loc_to_in_edges, "uniform")

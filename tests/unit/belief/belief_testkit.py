@@ -78,6 +78,13 @@ def odd_graph() -> TourGraph:
     return TourGraph(locs, es)
 
 
+def route_graph(n: int = 10) -> TourGraph:
+    """start(0) -> middle(1) -> end(2): a taught route that ends at a dead end (no edge leaves
+    ``end``), ``n`` images per edge, as the localisation bench builds from a recorded route."""
+    locs = tuple(location(x, 1) for x in ("start", "middle", "end"))
+    return TourGraph(locs, (edge(0, 1, n), edge(1, 2, n)))
+
+
 # ------------------------------------------------------------------------------------------
 # naive reference model (dicts and loops)
 # ------------------------------------------------------------------------------------------
@@ -150,6 +157,15 @@ def naive_transition(
             for j in others:
                 into(k, j, to_other / len(others), "head")
             sent += to_other if others else 0.0
+            if not rot and not outs[k] and p.navigate_dead_end > 0:
+                valid = list(range(L)) + [L + j for j in range(len(graph.edges)) if n_of[j]]
+                for st in valid:
+                    share = p.navigate_dead_end / len(valid)
+                    if st < L:
+                        struct[(k, st)] += share
+                    else:
+                        into(k, st - L, share, "uniform")
+                sent += p.navigate_dead_end
         elif kind is ActionKind.EXPLORE:
             for j in outs[k]:
                 into(k, j, p.explore_loc_to_out_edges / len(outs[k]), "head")

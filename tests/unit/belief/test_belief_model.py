@@ -12,6 +12,7 @@ from belief_testkit import (
     location,
     naive_transition,
     odd_graph,
+    route_graph,
     to_dense,
 )
 
@@ -32,7 +33,12 @@ def all_actions(graph: TourGraph) -> list[Action]:
     return acts
 
 
-GRAPHS = {"corridors": corridors_graph(12), "house": house_graph(), "odd": odd_graph()}
+GRAPHS = {
+    "corridors": corridors_graph(12),
+    "house": house_graph(),
+    "odd": odd_graph(),
+    "route": route_graph(),
+}
 
 
 @pytest.mark.parametrize("name", list(GRAPHS))
@@ -137,6 +143,28 @@ def test_navigate_exits_only_from_the_last_five_percent() -> None:
         assert (out[1] > 0) == expect_exit, k
         if expect_exit:
             assert out[1] == pytest.approx(model.params.navigate_exit)
+
+
+def test_navigate_from_a_dead_end_spreads_like_the_prior() -> None:
+    graph = route_graph()
+    model = BeliefModel(graph)
+    b = np.zeros(graph.n_fine)
+    b[2] = 1.0  # all mass at "end", where no edge leaves
+    out = model.operator(Action.navigate(), advance=0.0).apply(b)
+    leave = model.params.navigate_dead_end
+    assert out.sum() == pytest.approx(1.0)
+    assert out[2] == pytest.approx(1 - leave + leave * model.prior[2])
+    others = np.arange(graph.n_fine) != 2
+    np.testing.assert_allclose(out[others], leave * model.prior[others], atol=1e-15)
+    # a location with a way out sends Navigate's mass along it, not everywhere
+    b[:] = 0.0
+    b[1] = 1.0
+    out = model.operator(Action.navigate(1), advance=0.0).apply(b)
+    assert out[0] == 0.0 and out[fine_of(graph, 0, 0)] == 0.0
+    # standing at a dead end under any other action keeps the mass there
+    b[:] = 0.0
+    b[2] = 1.0
+    assert model.operator(Action.do_nothing(), advance=0.0).apply(b)[2] == pytest.approx(1.0)
 
 
 def test_standing_still_stays_and_moving_advances_by_the_expected_amount() -> None:
