@@ -17,7 +17,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse
 import importlib
 import importlib.util
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 # (command path, module, help). The module provides add_arguments(parser) and run(args) -> int.
@@ -71,10 +73,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    """SIGTERM ends a command like Ctrl-C does: as an exception, so that its ``with`` blocks
+    (a benchmark's scratch server, a simulator) clean up instead of leaving children behind."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``teachrepeat`` console script."""
     args = build_parser().parse_args(argv)
-    return int(importlib.import_module(args._module).run(args) or 0)
+    # ``serve`` leaves SIGTERM to uvicorn, which shuts down gracefully and re-raises it
+    in_main = threading.current_thread() is threading.main_thread()
+    handle = in_main and args._module != "server.serve"
+    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm) if handle else None
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    finally:
+        if handle:
+            signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 if __name__ == "__main__":
