@@ -50,11 +50,13 @@ def test_dashboard_shows_a_navigating_robot_and_sends_it_somewhere(
     streamer: FrameStreamer | None = None
     try:
         token = register(live.url, "rover")
-        with TeachRepeatClient(live.url, token) as client:
+        with TeachRepeatClient(live.url, token) as client, contextlib.ExitStack() as stack:
             teach_corridor(client, shared_data)
             client.goto("rover", "kitchen")
             streamer = FrameStreamer(client, "rover", query_frames(shared_data), goals=())
             streamer.start()
+            # stopped before its client closes (a thread mid-request on a closed client warned)
+            stack.callback(streamer.stop)
             with headless_browser(dashboard.url, executable=executable) as page:
                 page.wait_for_selector("canvas", timeout=30_000)
                 page.get_by_text("Action: ").first.wait_for(timeout=20_000)
@@ -95,7 +97,7 @@ def test_dashboard_shows_a_navigating_robot_and_sends_it_somewhere(
                 page.screenshot(path=str(screenshot))
     finally:
         if streamer is not None:
-            streamer.stop()
+            streamer.stop()  # (already stopped unless setting up failed)
         live.stop()
     assert streamer.sent > 5 and not streamer.errors, streamer.errors
     assert screenshot.stat().st_size > 50_000
