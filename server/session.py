@@ -79,6 +79,18 @@ class NavigationParams:
       than ``dock_min_inliers`` matches agreeing on a scale cannot tell (a bare wall) and
       leaves the belief's word standing. In the simulated home the belief alone stopped 0.4-1.0
       m short of the place, or 1.4-3.4 m past it, in 7 of 50 runs with moved furniture.
+    * ``place_dock`` (True), ``place_dock_ambiguity`` (0.5), ``place_dock_turns`` (1.25):
+      a robot whose belief is at the goal before it came in along a taught edge first tries to
+      dock on the place's own spin images, on two axes: it turns until the frame matches a spin
+      image (``dock_min_inliers`` agreeing on a scale), creeps along that view until the scale
+      agrees (as in docking), turns a quarter turn and does the same on the view there, then
+      arrives. Only at a place whose spin images do not look like elsewhere in the tour (their
+      mean similarity to images more than a metre from the place, ``TourRuntime.place_ambiguity``,
+      at most ``place_dock_ambiguity``: look-alike rooms are still approached along an edge,
+      which tells them apart). A robot that finds no spin image in ``place_dock_turns`` turns
+      falls back to the round trip below. In the simulated home the round trip failed in
+      small rooms: leaving the bathroom from 0.5-1 m off the place, the robot turned back at
+      the door, the belief returned to the place, and it set off again for the rest of the trial.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.
@@ -112,6 +124,9 @@ class NavigationParams:
     dock_min_inliers: int = 10
     dock_max_m: float = 1.5
     dock_reverse: bool = True
+    place_dock: bool = True
+    place_dock_ambiguity: float = 0.5
+    place_dock_turns: float = 1.25
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
@@ -177,6 +192,48 @@ class TourRuntime:
         ins = {e.target for e in graph.edges if e.n_images > 0}
         outs = {e.source for e in graph.edges if e.n_images > 0}
         self.approachable = tuple(k in ins and k in outs for k in range(graph.n_locations))
+        # canonical indices of each location's spin images (they come first, in order)
+        counts = [len(loc.image_ids) for loc in graph.locations]
+        firsts = np.cumsum([0, *counts])
+        self.spin_images = tuple(
+            np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
+        )
+        self._ambiguity: dict[int, float] = {}
+
+    def place_ambiguity(self, location: int, near_m: float = 1.0) -> float:
+        """How much the place's spin images look like elsewhere in the tour: the mean, over its
+        spin images, of the engine's best similarity (in [0, 1]) to an image taken more than
+        ``near_m`` metres from the place (by the taught speeds: every image but the place's own
+        and the ends of the edges at it). Look-alike rooms score ~0.7 in the simulated home,
+        the others 0.2-0.35. Computed on first use (one engine query per spin image)."""
+        cached = self._ambiguity.get(location)
+        if cached is not None:
+            return cached
+        g = self.graph
+        spins = self.spin_images[location]
+        if len(spins) == 0:
+            return 1.0
+        near = np.zeros(g.n_images, dtype=bool)
+        near[spins] = True
+        for j, e in enumerate(g.edges):
+            if e.n_images == 0 or location not in (e.source, e.target):
+                continue
+            steps = np.abs(e.v[:-1]) * np.clip(np.diff(e.timestamps), 0.0, None)
+            along = np.concatenate([[0.0], np.cumsum(steps)])
+            mine = np.zeros(e.n_images, dtype=bool)
+            if e.source == location:
+                mine |= along <= near_m
+            if e.target == location:
+                mine |= along >= along[-1] - near_m
+            near[self._edge_first[j] + np.arange(e.n_images)] |= mine
+        if near.all():
+            return 0.0
+        best = [
+            float(self.index.query(self.features[i], n_states=g.n_states).image[~near].max())
+            for i in spins
+        ]
+        self._ambiguity[location] = out = float(np.mean(best))
+        return out
 
     def moving_from(self, edge: int, k: int) -> int | None:
         """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
@@ -232,6 +289,14 @@ class Task:
     approach_edge: int | None = None  # the edge of that approach
     dock_m: float = 0.0  # metres of docking moves commanded since the approach began
     dock_log_scales: list[float] = field(default_factory=list)  # last few log scales
+    # docking on the place's spin images (NavigationParams.place_dock): the phase (idle, look,
+    # creep, turn, done, off), axes docked, the spin image docked on, radians turned and
+    # metres crept (as commanded) in this phase
+    place_phase: str = "idle"
+    place_axes: int = 0
+    place_target: int | None = None
+    place_rad: float = 0.0
+    place_m: float = 0.0
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
@@ -350,6 +415,7 @@ class RobotSession:
             )
             self._watch_stall(timestamp, v, dt)
             command = self._command(decision, features, similarity, summary, depth, timestamp)
+            command = self._place_dock(task, summary, features, similarity, depth, dt) or command
             self._track_approach(task, command, dt)
             there = self._belief_arrived(task, summary)
             if there:
@@ -553,17 +619,107 @@ class RobotSession:
             task.approach_s, task.approached = 0.0, False
             task.approach_edge, task.dock_m = None, 0.0
 
-    def _belief_arrived(self, task: Task, summary: BeliefSummary) -> bool:
-        """Whether the belief says the robot is at the goal (see ``arrive_mass``)."""
+    def _belief_at_goal(self, task: Task, summary: BeliefSummary) -> bool:
+        """Whether the belief puts the robot at the goal (``arrive_mass``, the evidence agreeing,
+        ``arrive_min_steps`` into the task), approached or not."""
         p = self.params
         at_goal = float(summary.belief[self.runtime.at_location[task.goal]].sum())
         agrees = summary.evidence >= p.tracker.localised_evidence
-        return (
-            at_goal >= p.arrive_mass
-            and agrees
-            and task.approached
-            and task.steps + 1 >= p.arrive_min_steps
-        )
+        return at_goal >= p.arrive_mass and agrees and task.steps + 1 >= p.arrive_min_steps
+
+    def _belief_arrived(self, task: Task, summary: BeliefSummary) -> bool:
+        """Whether the belief says the robot is at the goal (see ``arrive_mass``)."""
+        return task.approached and self._belief_at_goal(task, summary)
+
+    def _place_dock(
+        self,
+        task: Task,
+        summary: BeliefSummary,
+        features: ImageFeatures,
+        similarity: Similarity,
+        depth: npt.ArrayLike | None,
+        dt: float,
+    ) -> Command | None:
+        """Docking on the goal's own spin images, on two axes (``NavigationParams.place_dock``).
+
+        Returns the command while it is under way (reported as DoNothing: the robot turns and
+        creeps on the spot as far as the belief is concerned), ``None`` when it is not."""
+        p = self.params
+        mp = p.motion
+        rt = self.runtime
+        if not p.place_dock or task.approached or task.place_phase in ("done", "off"):
+            return None
+        last = self.last_command
+        if task.place_phase != "idle" and last is not None:  # as commanded, like docking
+            task.place_rad += abs(last.w) * dt
+            task.place_m += abs(last.v) * dt
+        if task.place_phase == "idle":
+            if not (self.needs_approach(task.goal) and self._belief_at_goal(task, summary)):
+                return None
+            if rt.place_ambiguity(task.goal) > p.place_dock_ambiguity:
+                task.place_phase = "off"  # a look-alike place: come in along an edge
+                return None
+            self._place_phase(task, "look")
+        self.stall_since = None  # turning on the spot on purpose is not being stuck
+        turn = Command(*rotate_command(mp), Action.do_nothing())
+        if task.place_phase == "turn":
+            if task.place_rad < np.pi / 2:
+                return turn
+            self._place_phase(task, "look")
+        if task.place_phase == "look":
+            target, fit = self._spin_view(task.goal, features, similarity)
+            seen = fit is not None and fit.inliers >= p.dock_min_inliers
+            if fit is None or not seen or abs(fit.offset) > mp.toward_offset:
+                if task.place_rad >= 2 * np.pi * p.place_dock_turns:
+                    task.place_phase = "off"  # nothing to dock on: the round trip takes over
+                    return None
+                if fit is not None and seen:  # in sight: turn toward it, slowing down
+                    return Command(*rotate_command(mp, toward=fit.offset), Action.do_nothing())
+                return turn
+            self._place_phase(task, "creep")
+            task.place_target = target
+        target = int(task.place_target if task.place_target is not None else 0)
+        fit = homing_scale(features, rt.features[target])
+        if fit is None or fit.inliers < p.dock_min_inliers:
+            task.place_phase = "look"  # lost the view; the turning budget goes on
+            return turn
+        task.dock_log_scales.append(float(np.log(fit.scale)))
+        del task.dock_log_scales[:-3]
+        log_scale = float(np.median(task.dock_log_scales))
+        short = log_scale > np.log1p(p.dock_scale_tol)
+        past = log_scale < np.log1p(-p.dock_scale_tol)
+        if task.place_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
+            task.place_axes += 1
+            if task.place_axes >= 2:
+                task.place_phase = "done"
+                task.approached, task.approach_edge = True, None
+                return Command(0.0, 0.0, Action.do_nothing())
+            self._place_phase(task, "turn")
+            return turn
+        _, w = navigate_command(fit.offset, taught_v=0.0, taught_w=0.0, params=mp)
+        v = mp.dock_v if short else -mp.dock_v
+        if short:
+            v, w = self._avoid(v, w, depth)
+        return Command(v, w, Action.do_nothing(), target)
+
+    @staticmethod
+    def _place_phase(task: Task, phase: str) -> None:
+        task.place_phase, task.place_rad, task.place_m = phase, 0.0, 0.0
+        task.dock_log_scales.clear()
+
+    def _spin_view(
+        self, location: int, features: ImageFeatures, similarity: Similarity, most: int = 3
+    ) -> tuple[int, ScaleResult | None]:
+        """The spin image of ``location`` the frame matches best (most inliers of the scale fit)
+        among the ``most`` the engine ranks highest, and that fit."""
+        spins = self.runtime.spin_images[location]
+        ranked = spins[np.argsort(-similarity.image[spins], kind="stable")[:most]]
+        best: tuple[int, ScaleResult | None] = (int(ranked[0]) if len(ranked) else 0, None)
+        for i in ranked:
+            fit = homing_scale(features, self.runtime.features[int(i)])
+            if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
+                best = (int(i), fit)
+        return best
 
     def _dock(
         self, task: Task, features: ImageFeatures, depth: npt.ArrayLike | None, dt: float

@@ -83,7 +83,7 @@ def test_the_belief_survives_a_new_task_when_asked_to() -> None:
 
 
 def test_standing_in_the_goal_room_is_not_arriving_until_the_robot_came_in_on_an_edge() -> None:
-    s = session()
+    s = session(place_dock=False)
     s.start_task(Task(id=1, goal=B, goal_name="B", started_at=0.0))
     actions = drive(s, lambda i: spin_image(B, i % 4), 30)
     assert s.task is not None and s.task.state == "underway"
@@ -273,3 +273,98 @@ def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() 
     target, fit = s._place_view(0, extract(turned))
     assert target == rt.edge_image(0, 8)
     assert fit is not None and fit.scale == pytest.approx(1.0, abs=0.01)
+
+
+# --- docking on the place's spin images -------------------------------------------------------
+
+BLANK = np.full((240, 320, 3), 128, np.uint8)
+
+
+def _stand_near_b(
+    s: RobotSession, x: float, y: float, theta: float, steps: int = 600
+) -> tuple[Task, list[Command], tuple[float, float, float]]:
+    """The robot stands near place B at ``(x, y)`` m from it, heading ``theta``; B's four spin
+    images face 0, 90, 180 and 270 degrees. Facing within 20 degrees of one, the camera sees it
+    magnified by ``1 + d / 1.5`` (``d``: metres the robot stands ahead of the place in that
+    direction); in between, nothing it can match. Commands move the robot as commanded."""
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    commands: list[Command] = []
+    t = 0.0
+    for _ in range(steps):
+        if task.state != "underway":
+            break
+        k = round(theta / (np.pi / 2))
+        if abs(theta - k * np.pi / 2) <= np.radians(20):
+            d = x * np.cos(k * np.pi / 2) + y * np.sin(k * np.pi / 2)
+            frame = zoomed(spin_image(B, k % 4), 1.0 + d / 1.5)
+        else:
+            frame = BLANK
+        v, w = (0.0, 0.0) if s.last_command is None else (s.last_command.v, s.last_command.w)
+        t += 0.1
+        rec = s.step(frame, timestamp=t, v=v, w=w)
+        commands.append(rec.command)
+        c = rec.command
+        theta += c.w * 0.1
+        x += c.v * 0.1 * np.cos(theta)
+        y += c.v * 0.1 * np.sin(theta)
+    return task, commands, (x, y, theta)
+
+
+def test_a_robot_off_the_spot_in_the_goal_room_docks_on_two_axes_and_arrives() -> None:
+    s = session()
+    task, commands, (x, y, _) = _stand_near_b(s, -0.3, 0.25, 0.3)
+    assert task.state == "arrived"
+    assert task.place_phase == "done" and task.place_axes == 2
+    # it crept (as far as the belief goes, on the spot: no round trip along an edge) ...
+    creeping = [c for c in commands if c.v != 0]
+    assert creeping and all(c.action.kind == ActionKind.DO_NOTHING for c in creeping)
+    # ... and ended up on the place, not where it stood (0.39 m away)
+    assert np.hypot(x, y) < 0.15, (x, y)
+
+
+def test_without_place_docking_the_robot_leaves_by_the_round_trip() -> None:
+    s = session(place_dock=False)
+    task, commands, _ = _stand_near_b(s, -0.3, 0.25, 0.3, steps=60)
+    assert task.state == "underway" and task.place_phase == "idle"
+    kinds = {c.action.kind for c in commands}
+    assert kinds & {ActionKind.ROTATE_AND_FIND_EDGE, ActionKind.NAVIGATE}
+
+
+def test_a_look_alike_place_is_not_docked_at_but_approached_along_an_edge() -> None:
+    s = session(place_dock_ambiguity=0.0)  # every place counts as a look-alike
+    task, commands, _ = _stand_near_b(s, -0.3, 0.25, 0.3, steps=60)
+    assert task.place_phase == "off" and task.state == "underway"
+    assert any(c.action.kind != ActionKind.DO_NOTHING for c in commands)
+
+
+def test_a_place_with_nothing_to_dock_on_falls_back_to_the_round_trip() -> None:
+    s = session()
+    blurred = [cv2.GaussianBlur(spin_image(B, k), (0, 0), 4) for k in range(4)]
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    phases = []
+    for i in range(400):
+        rec = s.step(blurred[i % 4], timestamp=0.1 * (i + 1), v=0.0, w=rec_w(s))
+        phases.append(task.place_phase)
+    assert "look" in phases and phases[-1] == "off"
+    turned = 2 * np.pi * NavigationParams().place_dock_turns
+    assert phases.count("look") * 0.1 * NavigationParams().motion.spin_w >= turned - 0.1
+    assert rec.command.action.kind != ActionKind.DO_NOTHING  # the round trip took over
+
+
+def rec_w(s: RobotSession) -> float:
+    return 0.0 if s.last_command is None else s.last_command.w
+
+
+def test_place_ambiguity_is_high_for_a_place_that_looks_like_the_middle_of_an_edge() -> None:
+    # D's spin images are copies of images from the middle of A -> B
+    feats = list(FEATURES)
+    a_to_b = [GRAPH.n_images - 40 + k for k in range(10)]  # canonical indices of edge 0
+    for k, i in enumerate(range(12, 16)):  # D's four spin images
+        feats[i] = FEATURES[a_to_b[3 + k]]
+    rt = TourRuntime(GRAPH, feats, NavigationParams())
+    assert rt.spin_images[D].tolist() == [12, 13, 14, 15]
+    assert rt.place_ambiguity(D) > 0.9
+    assert rt.place_ambiguity(A) < 0.5
+    assert rt.place_ambiguity(A) == rt.place_ambiguity(A)  # cached
