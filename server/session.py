@@ -291,12 +291,13 @@ class Task:
     dock_log_scales: list[float] = field(default_factory=list)  # last few log scales
     # docking on the place's spin images (NavigationParams.place_dock): the phase (idle, look,
     # creep, turn, done, off), axes docked, the spin image docked on, radians turned and
-    # metres crept (as commanded) in this phase
+    # metres crept (as commanded) in this phase, the last few log scales on this axis
     place_phase: str = "idle"
     place_axes: int = 0
     place_target: int | None = None
     place_rad: float = 0.0
     place_m: float = 0.0
+    place_log_scales: list[float] = field(default_factory=list)
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
@@ -683,12 +684,16 @@ class RobotSession:
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.place_phase = "look"  # lost the view; the turning budget goes on
             return turn
-        task.dock_log_scales.append(float(np.log(fit.scale)))
-        del task.dock_log_scales[:-3]
-        log_scale = float(np.median(task.dock_log_scales))
+        task.place_log_scales.append(float(np.log(fit.scale)))
+        del task.place_log_scales[:-3]
+        log_scale = float(np.median(task.place_log_scales))
         short = log_scale > np.log1p(p.dock_scale_tol)
         past = log_scale < np.log1p(-p.dock_scale_tol)
-        if task.place_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
+        settled = not (short or (past and p.dock_reverse))
+        if settled and len(task.place_log_scales) < 3 and task.place_m < p.dock_max_m:
+            # one fit may be off (parallax at close range): hold still until three agree
+            return Command(0.0, 0.0, Action.do_nothing(), target)
+        if task.place_m >= p.dock_max_m or settled:
             task.place_axes += 1
             if task.place_axes >= 2:
                 task.place_phase = "done"
@@ -705,7 +710,7 @@ class RobotSession:
     @staticmethod
     def _place_phase(task: Task, phase: str) -> None:
         task.place_phase, task.place_rad, task.place_m = phase, 0.0, 0.0
-        task.dock_log_scales.clear()
+        task.place_log_scales.clear()
 
     def _spin_view(
         self, location: int, features: ImageFeatures, similarity: Similarity, most: int = 3
