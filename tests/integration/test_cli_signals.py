@@ -42,9 +42,9 @@ def test_sigterm_to_a_benchmark_stops_its_scratch_server(shared_data: Path) -> N
         stderr=subprocess.PIPE,
         text=True,
     )
+    children: set[int] = set()
     try:
         deadline = time.monotonic() + 60
-        children: set[int] = set()
         while time.monotonic() < deadline and not children:
             time.sleep(0.2)
             children = {c for c in _children(bench.pid) if _alive(c)}
@@ -60,5 +60,6 @@ def test_sigterm_to_a_benchmark_stops_its_scratch_server(shared_data: Path) -> N
     finally:
         if bench.poll() is None:
             bench.kill()
-        for c in _children(bench.pid):
-            os.kill(c, signal.SIGKILL)
+        for c in children | _children(bench.pid):  # (an orphan has left bench's children)
+            if _alive(c):
+                os.kill(c, signal.SIGKILL)
