@@ -688,11 +688,7 @@ class RobotSession:
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.place_phase = "look"  # lost the view; the turning budget goes on
             return turn
-        task.place_log_scales.append(float(np.log(fit.scale)))
-        del task.place_log_scales[:-3]
-        log_scale = float(np.median(task.place_log_scales))
-        short = log_scale > np.log1p(p.dock_scale_tol)
-        past = log_scale < np.log1p(-p.dock_scale_tol)
+        short, past = self._scale_verdict(task.place_log_scales, fit)
         settled = not (short or (past and p.dock_reverse))
         if settled and len(task.place_log_scales) < 3 and task.place_m < p.dock_max_m:
             # one fit may be off (parallax at close range): hold still until three agree
@@ -723,11 +719,18 @@ class RobotSession:
         among the ``most`` the engine ranks highest, and that fit."""
         spins = self.runtime.spin_images[location]
         ranked = spins[np.argsort(-similarity.image[spins], kind="stable")[:most]]
-        best: tuple[int, ScaleResult | None] = (int(ranked[0]) if len(ranked) else 0, None)
-        for i in ranked:
-            fit = homing_scale(features, self.runtime.features[int(i)])
+        return self._best_view(features, [int(i) for i in ranked])
+
+    def _best_view(
+        self, features: ImageFeatures, candidates: Sequence[int]
+    ) -> tuple[int, ScaleResult | None]:
+        """Of ``candidates`` (canonical image indices, at least one), the one the frame matches
+        best (most inliers of the scale fit) and that fit; the first and ``None`` when none fits."""
+        best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
+        for i in candidates:
+            fit = homing_scale(features, self.runtime.features[i])
             if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
-                best = (int(i), fit)
+                best = (i, fit)
         return best
 
     def _dock(
@@ -749,11 +752,7 @@ class RobotSession:
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.dock_log_scales.clear()
             return None, True
-        task.dock_log_scales.append(float(np.log(fit.scale)))
-        del task.dock_log_scales[:-3]
-        log_scale = float(np.median(task.dock_log_scales))
-        short = log_scale > np.log1p(p.dock_scale_tol)
-        past = log_scale < np.log1p(-p.dock_scale_tol)
+        short, past = self._scale_verdict(task.dock_log_scales, fit)
         if task.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
             task.dock_log_scales.clear()
             return Command(0.0, 0.0, Action.navigate(edge), target), True
@@ -763,6 +762,16 @@ class RobotSession:
             return Command(v_cmd, w, Action.navigate(edge), target), False
         # backing up the way it came: the tracker has no backward motion, so it holds still
         return Command(-mp.dock_v, w, Action.do_nothing(), target), False
+
+    def _scale_verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
+        """Add ``fit``'s scale to ``log_scales`` (the last three are kept) and say from their
+        median whether the robot stands short of the view (``(True, False)``), past it
+        (``(False, True)``) or within ``dock_scale_tol`` of it (``(False, False)``)."""
+        log_scales.append(float(np.log(fit.scale)))
+        del log_scales[:-3]
+        log_scale = float(np.median(log_scales))
+        tol = self.params.dock_scale_tol
+        return log_scale > np.log1p(tol), log_scale < np.log1p(-tol)
 
     def _place_view(
         self, edge: int, features: ImageFeatures, most: int = 8
@@ -774,13 +783,8 @@ class RobotSession:
         rt = self.runtime
         last = rt.graph.edges[edge].n_images - 1
         ks = np.unique(np.linspace(rt.arrival[edge], last, most).round().astype(int))
-        best: tuple[int, ScaleResult | None] = (rt.edge_image(edge, last), None)
-        for k in ks:
-            target = rt.edge_image(edge, int(k))
-            fit = homing_scale(features, rt.features[target])
-            if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
-                best = (target, fit)
-        return best
+        target, fit = self._best_view(features, [rt.edge_image(edge, int(k)) for k in ks])
+        return (target, fit) if fit is not None else (rt.edge_image(edge, last), None)
 
     def _advance_task(
         self, task: Task, there: bool, decision: Decision, timestamp: float, wall: float
