@@ -101,4 +101,6 @@ def test_dashboard_shows_a_navigating_robot_and_sends_it_somewhere(
         live.stop()
     assert streamer.sent > 5 and not streamer.errors, streamer.errors
     assert screenshot.stat().st_size > 50_000
-    assert time.monotonic() - started < 60
+    # a guard against a hang, not a speed target (speed lives in `bench dashboard`): the run
+    # took 60.5 s on a slow day of this 2-core VM and ~35 s on a quicker one
+    assert time.monotonic() - started < 300
