@@ -16,7 +16,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -35,7 +35,13 @@ from server.motion import (
 from server.policy.costs import CostParams, cost_to_goal
 from server.policy.voting import Decision, PolicyParams, decide
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.homing import ScaleResult, homing_offset, homing_scale
+from server.vision.homing import (
+    ScaleResult,
+    ZoomLevel,
+    homing_offset,
+    homing_scale_zoomed,
+    zoom_levels,
+)
 from server.vision.index import EngineParams, Similarity, TourIndex
 
 FloatArray = npt.NDArray[np.float64]
@@ -95,6 +101,13 @@ class NavigationParams:
       furniture 43/50 instead of 37/50); it costs 3 runs in the unchanged home that the round
       trip had brought onto the spot and docking left 0.6-0.9 m off (a scale seen along one
       view at close range, with parallax, can mislead).
+    * ``dock_zooms`` ((1.3, 1.69)): both dockings read the scale through the frame zoomed in
+      and out by each of these factors as well as as it is
+      (:func:`server.vision.homing.homing_scale_zoomed`; four more feature extractions on a
+      docking step, none otherwise). The corner descriptors are not scale invariant: off the
+      spot by 0.4-0.8 m, the near scene looks 1.3-2 times larger or smaller than taught and
+      matched few corners, so the fit rested on far scene at a scale of ~1 and docking stopped
+      short. () reads the frame as it is only.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.
@@ -131,6 +144,7 @@ class NavigationParams:
     place_dock: bool = True
     place_dock_ambiguity: float = 0.5
     place_dock_turns: float = 1.25
+    dock_zooms: tuple[float, ...] = (1.3, 1.69)
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
@@ -318,6 +332,23 @@ class Command:
     target_image: int | None = None  # canonical image index (Navigate)
 
 
+class DockFrame:
+    """One step's frame as docking reads it: its features and, made on first use only, its
+    zoom levels (:func:`server.vision.homing.zoom_levels` with ``NavigationParams.dock_zooms``)."""
+
+    def __init__(
+        self, image: npt.NDArray[np.uint8], features: ImageFeatures, params: NavigationParams
+    ) -> None:
+        self.image = image
+        self.features = features
+        self.params = params
+
+    @cached_property
+    def levels(self) -> tuple[ZoomLevel, ...]:
+        """``(1 + 2 len(dock_zooms),)`` zoom levels, the frame itself first."""
+        return zoom_levels(self.image, self.features, self.params.dock_zooms, self.params.features)
+
+
 @dataclass(frozen=True)
 class StepRecord:
     """What one step saw and decided (kept in a bounded history)."""
@@ -420,11 +451,12 @@ class RobotSession:
             )
             self._watch_stall(timestamp, v, dt)
             command = self._command(decision, features, similarity, summary, depth, timestamp)
-            command = self._place_dock(task, summary, features, similarity, depth, dt) or command
+            frame = DockFrame(image, features, p)
+            command = self._place_dock(task, summary, frame, similarity, depth, dt) or command
             self._track_approach(task, command, dt)
             there = self._belief_arrived(task, summary)
             if there:
-                docking, there = self._dock(task, features, depth, dt)
+                docking, there = self._dock(task, frame, depth, dt)
                 command = docking or command
             else:
                 task.dock_log_scales.clear()
@@ -640,7 +672,7 @@ class RobotSession:
         self,
         task: Task,
         summary: BeliefSummary,
-        features: ImageFeatures,
+        frame: DockFrame,
         similarity: Similarity,
         depth: npt.ArrayLike | None,
         dt: float,
@@ -672,7 +704,7 @@ class RobotSession:
                 return turn
             self._place_phase(task, "look")
         if task.place_phase == "look":
-            target, fit = self._spin_view(task.goal, features, similarity)
+            target, fit = self._spin_view(task.goal, frame, similarity)
             seen = fit is not None and fit.inliers >= p.dock_min_inliers
             if fit is None or not seen or abs(fit.offset) > mp.toward_offset:
                 if task.place_rad >= 2 * np.pi * p.place_dock_turns:
@@ -684,7 +716,7 @@ class RobotSession:
             self._place_phase(task, "creep")
             task.place_target = target
         target = int(task.place_target if task.place_target is not None else 0)
-        fit = homing_scale(features, rt.features[target])
+        fit = homing_scale_zoomed(frame.levels, rt.features[target])
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.place_phase = "look"  # lost the view; the turning budget goes on
             return turn
@@ -713,28 +745,28 @@ class RobotSession:
         task.place_log_scales.clear()
 
     def _spin_view(
-        self, location: int, features: ImageFeatures, similarity: Similarity, most: int = 3
+        self, location: int, frame: DockFrame, similarity: Similarity, most: int = 3
     ) -> tuple[int, ScaleResult | None]:
         """The spin image of ``location`` the frame matches best (most inliers of the scale fit)
         among the ``most`` the engine ranks highest, and that fit."""
         spins = self.runtime.spin_images[location]
         ranked = spins[np.argsort(-similarity.image[spins], kind="stable")[:most]]
-        return self._best_view(features, [int(i) for i in ranked])
+        return self._best_view(frame, [int(i) for i in ranked])
 
     def _best_view(
-        self, features: ImageFeatures, candidates: Sequence[int]
+        self, frame: DockFrame, candidates: Sequence[int]
     ) -> tuple[int, ScaleResult | None]:
         """Of ``candidates`` (canonical image indices, at least one), the one the frame matches
         best (most inliers of the scale fit) and that fit; the first and ``None`` when none fits."""
         best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
         for i in candidates:
-            fit = homing_scale(features, self.runtime.features[i])
+            fit = homing_scale_zoomed(frame.levels, self.runtime.features[i])
             if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
                 best = (i, fit)
         return best
 
     def _dock(
-        self, task: Task, features: ImageFeatures, depth: npt.ArrayLike | None, dt: float
+        self, task: Task, frame: DockFrame, depth: npt.ArrayLike | None, dt: float
     ) -> tuple[Command | None, bool]:
         """The view's word on an arrival the belief has called (see ``NavigationParams.dock``).
 
@@ -748,7 +780,7 @@ class RobotSession:
         if task.dock_log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             task.dock_m += mp.dock_v * dt
-        target, fit = self._place_view(edge, features)
+        target, fit = self._place_view(edge, frame)
         if fit is None or fit.inliers < p.dock_min_inliers:
             task.dock_log_scales.clear()
             return None, True
@@ -774,7 +806,7 @@ class RobotSession:
         return log_scale > np.log1p(tol), log_scale < np.log1p(-tol)
 
     def _place_view(
-        self, edge: int, features: ImageFeatures, most: int = 8
+        self, edge: int, frame: DockFrame, most: int = 8
     ) -> tuple[int, ScaleResult | None]:
         """The image taught at the end of ``edge`` that the frame matches best (most inliers
         of the scale fit) and that fit: the images from the last one taught while moving
@@ -783,7 +815,7 @@ class RobotSession:
         rt = self.runtime
         last = rt.graph.edges[edge].n_images - 1
         ks = np.unique(np.linspace(rt.arrival[edge], last, most).round().astype(int))
-        target, fit = self._best_view(features, [rt.edge_image(edge, int(k)) for k in ks])
+        target, fit = self._best_view(frame, [rt.edge_image(edge, int(k)) for k in ks])
         return (target, fit) if fit is not None else (rt.edge_image(edge, last), None)
 
     def _advance_task(

@@ -15,7 +15,14 @@ from vision_testkit import scene, zoomed
 
 from server.belief.model import ActionKind
 from server.domain import Edge, Location, TourGraph
-from server.session import Command, NavigationParams, RobotSession, Task, TourRuntime
+from server.session import (
+    Command,
+    DockFrame,
+    NavigationParams,
+    RobotSession,
+    Task,
+    TourRuntime,
+)
 from server.vision.features import extract
 
 A, B, C, D = range(4)
@@ -270,7 +277,7 @@ def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() 
     assert rt.arrival == (6,)
     s = RobotSession("rover", rt)
     turned = scene(int(ab.image_ids[8]))  # the view once the guide had turned
-    target, fit = s._place_view(0, extract(turned))
+    target, fit = s._place_view(0, DockFrame(turned, extract(turned), rt.params))
     assert target == rt.edge_image(0, 8)
     assert fit is not None and fit.scale == pytest.approx(1.0, abs=0.01)
 

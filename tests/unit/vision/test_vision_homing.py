@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from vision_testkit import scene, shifted, zoomed
 
-from server.vision import extract, homing_offset, homing_scale, match_features
+from server.vision import FeatureParams, extract, homing_offset, homing_scale, match_features
+from server.vision.homing import homing_scale_zoomed, zoom_image, zoom_levels
 
 
 @pytest.mark.parametrize("dx", [-30, -10, 15, 40])
@@ -78,3 +79,47 @@ def test_scale_of_unrelated_or_blank_views_is_none_or_weak() -> None:
     assert homing_scale(extract(scene(26)), blank) is None
     other = homing_scale(extract(scene(26)), extract(scene(27)))
     assert other is None or other.inliers < 10
+
+
+# --- zoom levels: scales the corner descriptors cannot match at zoom 1 -------------------------
+
+
+def test_zoom_by_one_is_the_image_and_bad_factors_are_refused() -> None:
+    img = scene(31)
+    assert np.array_equal(zoom_image(img, 1.0), img)
+    assert zoom_image(img, 1.7).shape == img.shape
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="zoom factor"):
+            zoom_image(img, bad)
+
+
+def test_zoom_levels_are_the_frame_then_in_and_out_per_factor() -> None:
+    img = scene(32)
+    feats = extract(img)
+    levels = zoom_levels(img, feats, (1.3, 1.69), FeatureParams())
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69])
+    assert levels[0].features is feats
+    assert zoom_levels(img, feats, (), FeatureParams())[0].features is feats
+
+
+@pytest.mark.parametrize("factor", [1.7, 2.0, 1 / 1.7, 1 / 2.0])
+def test_zoomed_fit_reads_large_scales_on_many_more_corners(factor: float) -> None:
+    """The target taken 1.7-2 times nearer (or further): at zoom 1 few corners match (in a real
+    room the far scene, at scale ~1, then outvotes them); through the zoom levels at least
+    twice as many agree, on the right scale."""
+    img = scene(22)
+    feats, target = extract(img), extract(zoom_image(img, factor))
+    single = homing_scale(feats, target)
+    res = homing_scale_zoomed(zoom_levels(img, feats, (1.3, 1.69), FeatureParams()), target)
+    assert res is not None and res.inliers >= 30
+    assert single is None or res.inliers >= 2 * single.inliers
+    assert res.scale == pytest.approx(factor, rel=0.02)
+
+
+def test_zoomed_fit_with_one_level_is_the_plain_fit() -> None:
+    """Naive reference: with the frame itself as the only level, the plain fit."""
+    img = scene(22)
+    feats, target = extract(img), extract(zoom_image(img, 1.15))
+    plain = homing_scale(feats, target)
+    res = homing_scale_zoomed(zoom_levels(img, feats, (), FeatureParams()), target)
+    assert plain is not None and res == plain

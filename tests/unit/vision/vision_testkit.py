@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from server.vision import EngineParams, ImageFeatures, TourIndex, extract
+from server.vision.homing import zoom_image
 
 
 def scene(seed: int, size: tuple[int, int] = (320, 240)) -> np.ndarray:
@@ -37,9 +38,7 @@ def shifted(img: np.ndarray, dx: int) -> np.ndarray:
 def zoomed(img: np.ndarray, factor: float) -> np.ndarray:
     """``img`` magnified ``factor`` times about its centre (border replicated): what a camera
     a little further forward (> 1) or back (< 1) would see of a flat scene."""
-    h, w = img.shape[:2]
-    m = cv2.getRotationMatrix2D((w / 2, h / 2), 0.0, factor)
-    return cv2.warpAffine(img, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+    return zoom_image(img, factor)
 
 
 def index_of(
