@@ -162,6 +162,10 @@ class NavigationParams:
     costs: CostParams = field(default_factory=CostParams)
     motion: MotionParams = field(default_factory=MotionParams)
 
+    def __post_init__(self) -> None:
+        if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):
+            raise ValueError(f"dock_zooms must be finite factors > 1, got {self.dock_zooms}")
+
 
 class TourRuntime:
     """What the core derives from one snapshot of a tour. Immutable once built; shared by every

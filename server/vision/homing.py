@@ -262,9 +262,12 @@ def homing_scale_zoomed(
 
     The corner descriptors are not scale invariant: a view whose scene is 1.5 times larger than
     in the target matches few of its corners at zoom 1, and the fit then rests on whatever
-    far-away scene matched at scale ~1 (in the simulated home, teleported 0.4-0.8 m off a
-    place, single-zoom fits recovered 35-50 % of the true log scale). Zooming the frame by the
-    expected scale brings the near scene back in range.
+    far-away scene matched at scale ~1. Zooming the frame brings the near scene back in range.
+    In the simulated home (robot put 0.4 and 0.8 m off four places, 72 headings each, best of
+    the three top-ranked spin images), the displacement along the view read from the fits
+    ``r (1 / scale - 1)`` (``r``: depth straight ahead) against the true one had a regression
+    slope of 0.33 / 0.48 / 0.51 at zoom 1 for views 0-1.5 / 1.5-2.5 / 2.5-4 m deep, and
+    0.40 / 0.58 / 0.63 with zooms 1.3 and 1.69 in and out.
 
     Returns ``None`` when no level fits.
     """

@@ -375,3 +375,10 @@ def test_place_ambiguity_is_high_for_a_place_that_looks_like_the_middle_of_an_ed
     assert rt.place_ambiguity(D) > 0.9
     assert rt.place_ambiguity(A) < 0.5
     assert rt.place_ambiguity(A) == rt.place_ambiguity(A)  # cached
+
+
+def test_dock_zooms_must_be_factors_above_one() -> None:
+    assert NavigationParams(dock_zooms=()).dock_zooms == ()
+    for bad in ((1.0,), (0.5,), (float("nan"),), (1.3, -2.0)):
+        with pytest.raises(ValueError, match="dock_zooms"):
+            NavigationParams(dock_zooms=bad)
