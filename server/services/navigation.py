@@ -55,6 +55,7 @@ class NavigationService:
         self._steps = threading.BoundedSemaphore(concurrent_steps)
         self._runtimes: dict[int, TourRuntime] = {}
         self._stale: set[int] = set()
+        self._changes: dict[int, int] = {}  # tour_changed calls per tour
         self._sessions: dict[str, RobotSession] = {}
         self._tour_of: dict[str, int] = {}
         self._snapshot_at: dict[str, float] = {}
@@ -80,6 +81,7 @@ class NavigationService:
         ``goto`` right after teaching does not wait for it."""
         with self._lock:
             self._stale.add(tour_id)
+            self._changes[tour_id] = self._changes.get(tour_id, 0) + 1
             self._due[tour_id] = time.monotonic() + PREBUILD_DELAY_S
             if self._worker is None and not self._closed:
                 self._worker = threading.Thread(
@@ -102,22 +104,31 @@ class NavigationService:
             self._wake.wait(timeout=wait)
             self._wake.clear()
 
-    def runtime(self, tour_id: int) -> TourRuntime:
-        """The runtime of ``tour_id``, built (and its features extracted) on first use."""
+    def runtime(self, tour_id: int, *, wait: bool = True) -> TourRuntime:
+        """The runtime of ``tour_id``, built (and its features extracted) on first use and
+        again after the tour changed. With ``wait`` (a new task) a build under way is waited
+        for; without (a step of a task under way) the previous runtime is returned meanwhile,
+        and the session moves to the new one at a later step."""
         with self._lock:
             rt = self._runtimes.get(tour_id)
-            if rt is not None and tour_id not in self._stale:
-                return rt
             build_lock = self._build_locks.setdefault(tour_id, threading.Lock())
+            if rt is not None and (
+                tour_id not in self._stale or (not wait and build_lock.locked())
+            ):
+                return rt
         with build_lock:
             with self._lock:
                 rt = self._runtimes.get(tour_id)
                 if rt is not None and tour_id not in self._stale:
                     return rt
-                self._stale.discard(tour_id)
+                changes = self._changes.get(tour_id, 0)
             rt = self._build(tour_id, version=0 if rt is None else rt.version + 1)
             with self._lock:
                 self._runtimes[tour_id] = rt
+                # stale until built: a caller that comes while the build runs waits for it
+                # instead of taking the previous runtime; a change during the build keeps it stale
+                if self._changes.get(tour_id, 0) == changes:
+                    self._stale.discard(tour_id)
             return rt
 
     def _build(self, tour_id: int, *, version: int) -> TourRuntime:
@@ -167,7 +178,7 @@ class NavigationService:
             s = self._sessions.get(robot)
         if s is not None:
             tour_id = self._tour_of[robot]
-            rt = self.runtime(tour_id)
+            rt = self.runtime(tour_id, wait=False)
             if rt is not s.runtime:
                 with s.lock:
                     s.rebase(rt)
