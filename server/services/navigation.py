@@ -54,8 +54,8 @@ class NavigationService:
         self.clock = clock
         self._steps = threading.BoundedSemaphore(concurrent_steps)
         self._runtimes: dict[int, TourRuntime] = {}
-        self._stale: set[int] = set()
         self._changes: dict[int, int] = {}  # tour_changed calls per tour
+        self._built_from: dict[int, int] = {}  # the tour_changed count each runtime was built at
         self._sessions: dict[str, RobotSession] = {}
         self._tour_of: dict[str, int] = {}
         self._snapshot_at: dict[str, float] = {}
@@ -80,7 +80,6 @@ class NavigationService:
         new one (features of the new images, weights) once the changes pause, so that a
         ``goto`` right after teaching does not wait for it."""
         with self._lock:
-            self._stale.add(tour_id)
             self._changes[tour_id] = self._changes.get(tour_id, 0) + 1
             self._due[tour_id] = time.monotonic() + PREBUILD_DELAY_S
             if self._worker is None and not self._closed:
@@ -112,24 +111,25 @@ class NavigationService:
         with self._lock:
             rt = self._runtimes.get(tour_id)
             build_lock = self._build_locks.setdefault(tour_id, threading.Lock())
-            if rt is not None and (
-                tour_id not in self._stale or (not wait and build_lock.locked())
-            ):
+            if rt is not None and (self._is_current(tour_id) or (not wait and build_lock.locked())):
                 return rt
         with build_lock:
             with self._lock:
                 rt = self._runtimes.get(tour_id)
-                if rt is not None and tour_id not in self._stale:
+                if rt is not None and self._is_current(tour_id):
                     return rt
                 changes = self._changes.get(tour_id, 0)
             rt = self._build(tour_id, version=0 if rt is None else rt.version + 1)
             with self._lock:
+                # current only if the tour did not change while it was built; a caller that
+                # comes during the build waits for it instead of taking the previous runtime
                 self._runtimes[tour_id] = rt
-                # stale until built: a caller that comes while the build runs waits for it
-                # instead of taking the previous runtime; a change during the build keeps it stale
-                if self._changes.get(tour_id, 0) == changes:
-                    self._stale.discard(tour_id)
+                self._built_from[tour_id] = changes
             return rt
+
+    def _is_current(self, tour_id: int) -> bool:
+        """Whether the stored runtime was built after the tour's last change (under the lock)."""
+        return self._built_from.get(tour_id) == self._changes.get(tour_id, 0)
 
     def _build(self, tour_id: int, *, version: int) -> TourRuntime:
         graph = self.repo.graph(tour_id)
