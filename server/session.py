@@ -101,6 +101,12 @@ class NavigationParams:
       furniture 43/50 instead of 37/50); it costs 3 runs in the unchanged home that the round
       trip had brought onto the spot and docking left 0.6-0.9 m off (a scale seen along one
       view at close range, with parallax, can mislead).
+    * ``place_dock_away`` (pi rad): place docking gives up (the round trip takes over) once the
+      robot has turned this far while docking with the belief off the goal. At the place its
+      spin images show all round; a turn that mostly sees elsewhere says a look-alike view
+      started the docking. In the simulated home, under changed light, one view of the living
+      room passed for the entry: docking started there, went on although for most of each
+      turn the belief said "living room", and said "arrived" 5.3 m from the entry.
     * ``dock_zooms`` ((1.3, 1.69)): both dockings read the scale through the frame zoomed in
       and out by each of these factors as well as as it is
       (:func:`server.vision.homing.homing_scale_zoomed`; four more feature extractions on a
@@ -147,6 +153,7 @@ class NavigationParams:
     place_dock: bool = True
     place_dock_ambiguity: float = 0.5
     place_dock_turns: float = 1.25
+    place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
     fresh_belief: bool = True
     stall_s: float = 20.0
@@ -323,6 +330,7 @@ class Task:
     place_rad: float = 0.0
     place_m: float = 0.0
     place_log_scales: list[float] = field(default_factory=list)
+    place_away_rad: float = 0.0  # radians turned while docking with the belief off the goal
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
@@ -697,6 +705,13 @@ class RobotSession:
         if task.place_phase != "idle" and last is not None:  # as commanded, like docking
             task.place_rad += abs(last.w) * dt
             task.place_m += abs(last.v) * dt
+            if not self._belief_at_goal(task, summary):
+                # at the place its spin images show all round; a turn that mostly sees
+                # elsewhere says the robot is not there (a look-alike view started it)
+                task.place_away_rad += abs(last.w) * dt
+                if task.place_away_rad > p.place_dock_away:
+                    task.place_phase = "off"
+                    return None
         if task.place_phase == "idle":
             if not (self.needs_approach(task.goal) and self._belief_at_goal(task, summary)):
                 return None
