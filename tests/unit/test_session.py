@@ -382,3 +382,32 @@ def test_dock_zooms_must_be_factors_above_one() -> None:
     for bad in ((1.0,), (0.5,), (float("nan"),), (1.3, -2.0)):
         with pytest.raises(ValueError, match="dock_zooms"):
             NavigationParams(dock_zooms=bad)
+
+
+def _dock_then_see_c(s: RobotSession, steps: int = 400) -> tuple[int, int]:
+    """Start place docking at B (the robot stands there seeing B's spin images), then show it
+    only C's spin images as it turns. Returns the step at which the frames changed and the step
+    at which place docking gave up (-1: it did not)."""
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    switched, gave_up = -1, -1
+    for i in range(steps):
+        if switched < 0 and task.place_phase != "idle":
+            switched = i
+        frame = spin_image(B, i % 4) if switched < 0 else spin_image(C, i % 4)
+        s.step(frame, timestamp=0.1 * (i + 1), v=0.0, w=rec_w(s))
+        if task.place_phase == "off":
+            gave_up = i
+            break
+    return switched, gave_up
+
+
+def test_place_docking_gives_up_when_the_belief_leaves_the_goal_while_it_turns() -> None:
+    """A docking started on a look-alike view: once the robot has turned ``place_dock_away``
+    with the belief elsewhere, the round trip takes over, before the turning budget runs out."""
+    spin_w = NavigationParams().motion.spin_w
+    switched, gave_up = _dock_then_see_c(session())
+    assert 0 <= switched < gave_up
+    assert (gave_up - switched) * 0.1 * spin_w <= np.pi + 1.5  # + the steps the belief takes
+    switched, gave_up = _dock_then_see_c(session(place_dock_away=np.inf))
+    assert gave_up < 0 or (gave_up - switched) * 0.1 * spin_w >= 2 * np.pi * 1.25 - 0.1
