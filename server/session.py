@@ -291,6 +291,15 @@ class TourRuntime:
         return sim, fine_likelihood(sim.image, self.graph)
 
 
+def _elapsed(now: float, then: float) -> float:
+    """Robot seconds from ``then`` to ``now``, rounded to the microsecond. The difference of two
+    large timestamps carries a rounding error (~1e-13 s at 3000 s) that depends on how large the
+    robot clock has grown; thresholds reached exactly (ten frames of 0.1 s against an
+    ``approach_s`` of 1 s, 40 frames against ``unstick_s``) then fell one frame earlier or later
+    depending on the clock, and with them the course of a whole trial."""
+    return round(now - then, 6)
+
+
 def _next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
     """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
     ``eps``, or -1 when none follows."""
@@ -446,7 +455,7 @@ class RobotSession:
         started = time.perf_counter()
         rt = self.runtime
         p = self.params
-        dt = 0.0 if self.last_timestamp is None else timestamp - self.last_timestamp
+        dt = 0.0 if self.last_timestamp is None else _elapsed(timestamp, self.last_timestamp)
         dt = float(np.clip(dt, 0.0, p.max_dt_s))
         features = extract(image, p.features)
         similarity, likelihood = rt.observe(features)
@@ -509,7 +518,7 @@ class RobotSession:
         mp = self.params.motion
         action = decision.action
         target: int | None
-        if self.unstick_until is not None and timestamp < self.unstick_until:
+        if self.unstick_until is not None and _elapsed(self.unstick_until, timestamp) > 0:
             action = Action.explore()  # unsticking (watchdog or a fruitless search), see _unstick
         elif action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self.leaving = None
@@ -573,7 +582,7 @@ class RobotSession:
         self.stall_driven += abs(v) * dt
         if self.stall_driven >= p.stall_m:
             self.stall_since, self.stall_driven = now, 0.0
-        elif now - self.stall_since >= p.stall_s:
+        elif _elapsed(now, self.stall_since) >= p.stall_s:
             self.unstick_until = now + p.motion.unstick_s
             self.stall_since, self.stall_driven = now, 0.0
             self.leaving = None
@@ -587,7 +596,7 @@ class RobotSession:
         if self.unstick_until is not None:  # explored (see _command): search afresh
             self.unstick_until = None
             self.searched_rad = 0.0
-        dt = 0.0 if self.last_timestamp is None else max(0.0, now - self.last_timestamp)
+        dt = 0.0 if self.last_timestamp is None else max(0.0, _elapsed(now, self.last_timestamp))
         self.searched_rad += abs(w) * min(dt, self.params.max_dt_s)
         if self.searched_rad >= 2 * np.pi * mp.find_turns:
             self.unstick_until = now + mp.unstick_s
@@ -856,7 +865,7 @@ class RobotSession:
             )
         elif (
             task.started_robot_time is not None
-            and timestamp - task.started_robot_time > p.max_task_s
+            and _elapsed(timestamp, task.started_robot_time) > p.max_task_s
         ):
             task.end("failed", f"timeout: still underway after {p.max_task_s:.0f} s", wall)
 
