@@ -411,3 +411,28 @@ def test_place_docking_gives_up_when_the_belief_leaves_the_goal_while_it_turns()
     assert (gave_up - switched) * 0.1 * spin_w <= np.pi + 1.5  # + the steps the belief takes
     switched, gave_up = _dock_then_see_c(session(place_dock_away=np.inf))
     assert gave_up < 0 or (gave_up - switched) * 0.1 * spin_w >= 2 * np.pi * 1.25 - 0.1
+
+
+def _approach_step(t0: float) -> int:
+    """The step at which coming in along A -> B counts as an approach (``approach_s``), for a
+    robot clock that starts at ``t0`` and adds 0.1 s per frame, as a robot's clock does."""
+    s = session()
+    task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
+    s.start_task(task)
+    a_to_b = GRAPH.edges[0].image_ids
+    t = t0
+    for i in range(40):
+        t += 0.1
+        s.step(scene(int(a_to_b[min(i // 4, 9)])), timestamp=t, v=0.3)
+        if task.approached:
+            return i
+    return -1
+
+
+def test_durations_do_not_depend_on_how_large_the_robot_clock_has_grown() -> None:
+    # timestamps near 3000 s differ by 0.1 +- 1e-13 s: summed to exactly approach_s (1 s),
+    # the approach came a frame early or late depending on the clock, and trials of a
+    # benchmark run depended on how long the trials before them had taken
+    first = _approach_step(0.0)
+    assert first > 0
+    assert [_approach_step(t0) for t0 in (3000.0, 3000.05, 12345.6)] == [first] * 3
