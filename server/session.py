@@ -474,7 +474,7 @@ class RobotSession:
                 hold_goal=task.approached,
             )
             self._watch_stall(timestamp, v, dt)
-            command = self._command(decision, features, similarity, summary, depth, timestamp)
+            command = self._command(decision, features, similarity, summary, depth, timestamp, dt)
             frame = DockFrame(image, features, p)
             command = self._place_dock(task, summary, frame, similarity, depth, dt) or command
             self._track_approach(task, command, dt)
@@ -514,6 +514,7 @@ class RobotSession:
         summary: BeliefSummary,
         depth: npt.ArrayLike | None,
         timestamp: float = 0.0,
+        dt: float = 0.0,
     ) -> Command:
         mp = self.params.motion
         action = decision.action
@@ -535,7 +536,7 @@ class RobotSession:
                 action.edge, features, similarity, at_location=at_location
             )
             if action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
-                v, w, action = self._unstick(v, w, action, depth, timestamp)
+                v, w, action = self._unstick(v, w, action, depth, timestamp, dt)
         elif action.kind == ActionKind.EXPLORE:
             (v, w), target = explore_command(depth, mp), None
         else:
@@ -588,16 +589,22 @@ class RobotSession:
             self.leaving = None
 
     def _unstick(
-        self, v: float, w: float, action: Action, depth: npt.ArrayLike | None, now: float
+        self,
+        v: float,
+        w: float,
+        action: Action,
+        depth: npt.ArrayLike | None,
+        now: float,
+        dt: float,
     ) -> tuple[float, float, Action]:
         """Count the turning done while searching; after ``find_turns`` full turns without
-        finding the edge, explore toward open space for ``unstick_s``, then search again."""
+        finding the edge, explore toward open space for ``unstick_s``, then search again.
+        ``dt``: robot seconds since the last frame, as :meth:`step` clipped them."""
         mp = self.params.motion
         if self.unstick_until is not None:  # explored (see _command): search afresh
             self.unstick_until = None
             self.searched_rad = 0.0
-        dt = 0.0 if self.last_timestamp is None else max(0.0, _elapsed(now, self.last_timestamp))
-        self.searched_rad += abs(w) * min(dt, self.params.max_dt_s)
+        self.searched_rad += abs(w) * dt
         if self.searched_rad >= 2 * np.pi * mp.find_turns:
             self.unstick_until = now + mp.unstick_s
             ev, ew = explore_command(depth, mp)
