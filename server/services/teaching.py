@@ -41,7 +41,7 @@ class TeachingService:
     # --- queries --------------------------------------------------------------------------
 
     def state(self, robot: str) -> schemas.TeachingState | None:
-        with self.repo.transaction():
+        with self.repo.snapshot():
             row = self.repo.teaching(robot)
             return None if row is None else self._state(row)
 

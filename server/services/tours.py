@@ -52,7 +52,7 @@ class TourService:
         ]
 
     def graph(self, tour_id: int) -> schemas.TourGraphPublic:
-        with self.repo.transaction():  # one consistent snapshot
+        with self.repo.snapshot():
             tour = self.repo.tour(tour_id)
             locations = self.repo.locations(tour_id)
             edges = self.repo.edges(tour_id)

@@ -114,6 +114,7 @@ class Repo:
             conn.execute("PRAGMA synchronous = NORMAL")
         self._lock = threading.RLock()
         self._depth = 0
+        self._reading = False  # the open outer transaction is a read snapshot
         self.schema_version = migrate(self.db)
 
     def close(self) -> None:
@@ -126,6 +127,8 @@ class Repo:
     def transaction(self) -> Iterator[None]:
         """All statements inside commit together or not at all; nesting joins the outer one."""
         with self._lock:
+            if self._reading:
+                raise RuntimeError("a write transaction cannot be nested in a read snapshot")
             outer = self._depth == 0
             if outer:
                 self._execute_guarded("BEGIN IMMEDIATE")
@@ -140,6 +143,29 @@ class Repo:
             self._depth -= 1
             if outer:
                 self._execute_guarded("COMMIT")
+
+    @contextmanager
+    def snapshot(self) -> Iterator[None]:
+        """Reads inside see one consistent state of the file and write nothing.
+
+        A deferred transaction: unlike :meth:`transaction` it takes no write lock, so it keeps
+        working on a read-only file. Inside a transaction it joins it; a transaction inside a
+        snapshot is a programming error (``RuntimeError``).
+        """
+        with self._lock:
+            outer = self._depth == 0
+            if outer:
+                self._execute_guarded("BEGIN DEFERRED")
+                self._reading = True
+            self._depth += 1
+            try:
+                yield
+            finally:
+                self._depth -= 1
+                if outer:
+                    self._reading = False
+                    if self.db.conn.in_transaction:
+                        self.db.conn.execute("COMMIT")  # ends the read; nothing was written
 
     def _execute_guarded(self, sql: str) -> None:
         try:

@@ -82,6 +82,24 @@ def test_nested_transactions_join_the_outer_one(repo: Repo) -> None:
     assert repo.tours() == []
 
 
+def test_a_snapshot_reads_a_read_only_file_and_refuses_writes_inside(repo: Repo) -> None:
+    tour = repo.add_tour("kept")
+    repo.db.conn.execute("PRAGMA query_only = ON")  # as a read-only file would behave
+    with pytest.raises(sqlite3.OperationalError):
+        repo.db.conn.execute("BEGIN IMMEDIATE")  # what a write transaction needs
+    with repo.snapshot():
+        assert repo.tour(tour.id).name == "kept"
+        with repo.snapshot():  # nesting joins
+            assert [t.name for t, *_ in repo.tours()] == ["kept"]
+        with pytest.raises(RuntimeError, match="read snapshot"), repo.transaction():
+            pass
+    assert not repo.db.conn.in_transaction
+    repo.db.conn.execute("PRAGMA query_only = OFF")
+    with repo.transaction(), repo.snapshot():  # a snapshot inside a transaction joins it
+        repo.add_tour("joined")
+    assert repo.tour_by_name("joined") is not None
+
+
 def test_not_found_errors_say_what_to_do(repo: Repo) -> None:
     with pytest.raises(NotFound, match="GET /tours"):
         repo.tour(5)
