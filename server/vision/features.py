@@ -297,6 +297,18 @@ def normalise(
     """Resize to the working size: ``(colour (H, W, 3) BGR uint8, grey (H, W) uint8)``; the
     colour image with (``params.colour_constancy``) :func:`grey_world` normalisation, the grey
     one as the frame came."""
+    img = _working_size(image, params)
+    # corners, descriptors and the patch block are gain invariant already (normalised
+    # gradients, local contrast): they read the frame as it came, without the clipping a gain
+    # can cause; only the colour blocks (histogram, thumbnail) read the normalised colours
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if params.colour_constancy:
+        img = grey_world(img, params.colour_target, params.colour_percentile)
+    return np.ascontiguousarray(img, dtype=np.uint8), np.asarray(grey, np.uint8)
+
+
+def _working_size(image: npt.NDArray[np.uint8], params: FeatureParams) -> npt.NDArray[np.uint8]:
+    """``image`` as ``(H, W, 3)`` BGR uint8 at the working size (grey and BGRA converted)."""
     img: npt.NDArray[Any] = np.asarray(image)
     if img.dtype != np.uint8:
         raise ValueError(f"expected a uint8 image, got {img.dtype}; convert it first")
@@ -313,13 +325,7 @@ def normalise(
         shrink = img.shape[1] >= params.width and img.shape[0] >= params.height
         interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
         img = cv2.resize(img, size, interpolation=interp)
-    # corners, descriptors and the patch block are gain invariant already (normalised
-    # gradients, local contrast): they read the frame as it came, without the clipping a gain
-    # can cause; only the colour blocks (histogram, thumbnail) read the normalised colours
-    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    if params.colour_constancy:
-        img = grey_world(img, params.colour_target, params.colour_percentile)
-    return np.ascontiguousarray(img, dtype=np.uint8), np.asarray(grey, np.uint8)
+    return np.asarray(img, np.uint8)
 
 
 def grey_world(
@@ -519,11 +525,7 @@ def extract(image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams(
         :class:`ImageFeatures` with at most ``params.n_features`` corners, strongest first.
     """
     colour, grey = normalise(image, params)
-    corners = detect_corners(grey, params)
-    if params.descriptor == "grad36":
-        desc = grad36_descriptors(grey, corners, params)
-    else:
-        corners, desc = orb_descriptors(grey, corners)
+    corners, desc = _corners_and_descriptors(grey, params)
     signature = compute_signature(colour, grey, desc, params)
     return ImageFeatures(
         keypoints=corners,
@@ -533,6 +535,34 @@ def extract(image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams(
         size=(params.width, params.height),
         flags=params.flags,
     )
+
+
+def extract_corners(
+    image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+) -> ImageFeatures:
+    """The corners and descriptors of one frame, without the global signature: what matching
+    and homing (:mod:`server.vision.homing`) read, for about 60 % of the cost of
+    :func:`extract`. Keypoints and descriptors equal those :func:`extract` gives; the
+    ``signature`` is empty, so these features cannot be added to or queried in an index."""
+    grey = cv2.cvtColor(_working_size(image, params), cv2.COLOR_BGR2GRAY)
+    corners, desc = _corners_and_descriptors(np.asarray(grey, np.uint8), params)
+    return ImageFeatures(
+        keypoints=corners,
+        descriptors=desc,
+        signature=np.zeros(0, np.float32),
+        descriptor=params.descriptor,
+        size=(params.width, params.height),
+        flags=params.flags,
+    )
+
+
+def _corners_and_descriptors(
+    grey: npt.NDArray[np.uint8], params: FeatureParams
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    corners = detect_corners(grey, params)
+    if params.descriptor == "grad36":
+        return corners, grad36_descriptors(grey, corners, params)
+    return orb_descriptors(grey, corners)
 
 
 def descriptor_distances(

@@ -15,7 +15,12 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from server.vision.features import FeatureParams, ImageFeatures, descriptor_distances, extract
+from server.vision.features import (
+    FeatureParams,
+    ImageFeatures,
+    descriptor_distances,
+    extract_corners,
+)
 
 
 @dataclass(frozen=True)
@@ -241,12 +246,13 @@ def zoom_levels(
     params: FeatureParams,
 ) -> tuple[ZoomLevel, ...]:
     """The frame itself (``features``) and, for every ``z`` in ``zooms``, the frame zoomed in by
-    ``z`` and out by ``1 / z``: ``1 + 2 len(zooms)`` levels, each one feature extraction."""
+    ``z`` and out by ``1 / z``: ``1 + 2 len(zooms)`` levels. The zoomed levels carry corners
+    and descriptors only (:func:`extract_corners`): homing reads nothing else."""
     levels = [ZoomLevel(1.0, features)]
     for z in zooms:
         for f in (float(z), 1.0 / float(z)):
             if f != 1.0:
-                levels.append(ZoomLevel(f, extract(zoom_image(image, f), params)))
+                levels.append(ZoomLevel(f, extract_corners(zoom_image(image, f), params)))
     return tuple(levels)
 
 

@@ -9,7 +9,12 @@ from hypothesis import strategies as st
 from vision_testkit import scene
 
 from server.vision import FeatureParams, ImageFeatures, extract
-from server.vision.features import grey_world, signature_blocks, signature_length
+from server.vision.features import (
+    extract_corners,
+    grey_world,
+    signature_blocks,
+    signature_length,
+)
 
 
 def test_extract_shapes_and_dtypes() -> None:
@@ -45,6 +50,31 @@ def test_fifty_features_option_and_orb() -> None:
     orb = extract(scene(3), FeatureParams(descriptor="orb"))
     assert orb.descriptor == "orb" and orb.descriptors.shape[1] == 32
     assert len(orb.signature) == signature_length(FeatureParams(descriptor="orb"))
+
+
+@pytest.mark.parametrize(
+    ("shape", "params"),
+    [
+        ((240, 320, 3), FeatureParams()),
+        ((120, 160, 3), FeatureParams()),
+        ((240, 320), FeatureParams(colour_constancy=False)),
+        ((300, 400, 3), FeatureParams(descriptor="orb")),
+    ],
+)
+def test_extract_corners_gives_the_corners_and_descriptors_of_extract(
+    shape: tuple[int, ...], params: FeatureParams
+) -> None:
+    img = (
+        scene(5)
+        if shape == (240, 320, 3)
+        else np.random.default_rng(1).integers(0, 256, size=shape, dtype=np.uint8)
+    )
+    full, local = extract(img, params), extract_corners(img, params)
+    assert local.n_keypoints > 0
+    assert np.array_equal(local.keypoints, full.keypoints)
+    assert np.array_equal(local.descriptors, full.descriptors)
+    assert (local.descriptor, local.size, local.flags) == (full.descriptor, full.size, full.flags)
+    assert local.signature.shape == (0,)
 
 
 def test_blank_image_has_no_corners_but_a_signature() -> None:
