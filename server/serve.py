@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import gc
 import os
 import socket
 from pathlib import Path
@@ -112,6 +113,10 @@ def run(args: argparse.Namespace) -> int:
         used = dashboard.start()
         print(f"dashboard        http://{settings.host}:{used}", flush=True)
     config = uvicorn.Config(app, log_level="warning", access_log=False)
+    # what exists now (modules, the app, ~90 000 objects) lives as long as the process: keep
+    # it out of the collector, whose full passes over it stalled a step by ~35 ms now and then
+    gc.collect()
+    gc.freeze()
     try:
         uvicorn.Server(config).run(sockets=[sock])
     finally:
