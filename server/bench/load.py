@@ -52,6 +52,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--p99-ms", type=float, default=100.0, help="latency target (default 100)")
     parser.add_argument("--goal", default="kitchen", help="place every robot is sent to")
+    parser.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="every robot starts at the first frame, so all of them reach the same stretch of "
+        "the corridor (and dock at its end) in the same 0.1 s: the worst case. By default "
+        "robot i of R starts at frame i * frames / R",
+    )
     parser.add_argument("--rss-every", type=float, default=1.0, help="RSS sampling period, s")
     parser.add_argument(
         "--server-env",
@@ -136,9 +143,11 @@ def robot_loop(
     goal: str,
     until: float,
     log: RobotLog,
+    first_frame: int = 0,
 ) -> None:
-    """Replay ``frames`` (looping) at ``rate_hz`` until ``until`` (monotonic); a new goto when
-    the task ends (arrived or failed), so every robot keeps navigating."""
+    """Replay ``frames`` (looping, from ``first_frame``) at ``rate_hz`` until ``until``
+    (monotonic); a new goto when the task ends (arrived or failed), so every robot keeps
+    navigating."""
     from robot_client.client import TeachRepeatClient
     from server import schemas
 
@@ -155,7 +164,7 @@ def robot_loop(
                 return
             try:
                 result = client.upload_frame(
-                    name, frames[k % len(frames)], timestamp=k * period, v=0.3
+                    name, frames[(first_frame + k) % len(frames)], timestamp=k * period, v=0.3
                 )
                 log.steps.append((sent, time.monotonic() - sent))
                 if isinstance(result, schemas.NavigationFrameResult) and (
@@ -193,8 +202,13 @@ def one_run(
     goal: str,
     rss_every_s: float,
     server_env: dict[str, str] | None = None,
+    lockstep: bool = False,
 ) -> dict[str, Any]:
-    """Start a fresh server, teach, drive ``robots`` clients; the figures of this run."""
+    """Start a fresh server, teach, drive ``robots`` clients; the figures of this run.
+
+    Robot ``i`` sends its frames ``i / (rate_hz robots)`` s after robot 0 and, unless
+    ``lockstep``, starts ``i / robots`` of the way along the frames: robots of a fleet are
+    not all at the same place of their route at the same moment."""
     from robot_client.client import TeachRepeatClient
     from robot_client.teach import teach_folder
     from server.process import ADMIN, scratch_server
@@ -223,6 +237,7 @@ def one_run(
                     "frames": frames,
                     "rate_hz": rate_hz,
                     "phase_s": i / (rate_hz * robots),
+                    "first_frame": 0 if lockstep else i * len(frames) // robots,
                     "goal": goal,
                     "until": until,
                     "log": logs[name],
@@ -251,6 +266,7 @@ def one_run(
         "seconds": seconds,
         "warmup_s": warmup_s,
         "offered_fps": robots * rate_hz,
+        "lockstep": lockstep,
         "fps": len(measured) / seconds,
         "frames": len(measured),
         "latency_ms": latency,
@@ -293,7 +309,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"load: {len(frames)} query frames at {args.rate:g} Hz per robot, "
         f"{args.warmup:g} s warm-up + {args.seconds:g} s measured per run; "
-        f"clients share the server's {os.cpu_count()} cores"
+        f"clients share the server's {os.cpu_count()} cores; "
+        + ("robots in lockstep" if args.lockstep else "robots start spread along the frames")
         + (f"; server environment {server_env}" if server_env else "")
     )
     runs = []
@@ -308,6 +325,7 @@ def run(args: argparse.Namespace) -> int:
             goal=args.goal,
             rss_every_s=args.rss_every,
             server_env=server_env,
+            lockstep=args.lockstep,
         )
         result["meets_target"] = meets(result, args.p99_ms)
         runs.append(result)
