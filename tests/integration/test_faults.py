@@ -8,6 +8,7 @@ teaching.
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import signal
@@ -26,8 +27,12 @@ import pytest
 from conftest import Api, make_jpeg
 
 from robot_client.client import TeachRepeatClient
+from robot_client.guide import teach_route
 from robot_client.navigate import LoopParams, drive
+from robot_client.sim import SimulatedRobot, SimWorld, load_plan
+from robot_client.sim.world import Pose
 from robot_client.teach import teach_folder
+from robot_client.trial import SUCCESS_RADIUS_M, run_trial
 from server import schemas
 from server.process import ADMIN, ServerProcess, start_server
 from server.services.navigation import BELIEF_SNAPSHOT_S
@@ -238,6 +243,53 @@ def test_navigation_resumes_after_sigkill_from_the_persisted_belief(
         assert repo.integrity_ok() and repo.short_edges() == []
     finally:
         repo.close()
+
+
+@pytest.mark.slow
+def test_a_robot_whose_server_is_killed_mid_task_still_arrives(
+    tmp_path: Path, cleanup: list[ServerProcess]
+) -> None:
+    """The closed loop through a crash: the simulated robot is sent to a place, the server is
+    SIGKILLed mid-way and restarted on the same file and port; the robot's loop waits (its
+    client retries with backoff, the motors stop), the task goes on from the persisted belief,
+    and the robot arrives where the place really is."""
+    db, port = tmp_path / "crash.sqlite", free_port()
+    cleanup.append(serve_on(db, port))
+    url = f"http://127.0.0.1:{port}"
+    with TeachRepeatClient(url, ADMIN) as admin:
+        token = admin.register_robot("sim").token
+    plan = load_plan()
+    killed: list[tuple[int, schemas.TaskPublic | None]] = []
+
+    def crash(step: int, result: schemas.NavigationFrameResult) -> None:
+        if step == 40 and not killed:  # the belief persisted last is up to a second old
+            killed.append((step, result.task))
+            cleanup[0].kill()
+
+            def restart() -> None:
+                time.sleep(0.5)
+                cleanup.append(serve_on(db, port))
+
+            threading.Thread(target=restart, daemon=True).start()
+
+    with (
+        TeachRepeatClient(url, token, retries=8, backoff_s=0.2) as client,
+        SimWorld(plan, condition="same", seed=1) as world,
+    ):
+        robot = SimulatedRobot(world, Pose(6.8, 4.75, 0.0), seed=1)
+        teach_route(
+            client, "sim", robot, plan, tour="three", route=("hall", "bathroom", "hall", "office")
+        )
+        robot.teleport(Pose(6.0, 4.75, math.pi))
+        result = run_trial(client, "sim", robot, plan, "office", max_steps=900, on_step=crash)
+        state = client.state("sim")
+    assert killed and len(cleanup) == 2, "the server was not killed and restarted"
+    assert result.steps > 40 and cleanup[1].proc.poll() is None
+    assert result.state == "arrived", result
+    assert result.distance_m <= SUCCESS_RADIUS_M and not result.wrong_arrival, result
+    task = killed[0][1]
+    assert state.navigation is not None and state.navigation.task is not None and task
+    assert state.navigation.task.id == task.id  # the same task, resumed, not a new one
 
 
 @pytest.mark.slow
