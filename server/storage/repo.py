@@ -183,6 +183,8 @@ class Repo:
     def _x(self, sql: str, params: Sequence[object] = ()) -> int:
         """Execute a write; returns lastrowid. Call inside :meth:`transaction`."""
         with self._lock, _guard():
+            if self._reading:
+                raise RuntimeError("a write inside a read snapshot; use Repo.transaction()")
             return int(self.db.conn.execute(sql, params).lastrowid or 0)
 
     def integrity_ok(self) -> bool:

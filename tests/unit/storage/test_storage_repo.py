@@ -95,6 +95,9 @@ def test_a_snapshot_reads_a_read_only_file_and_refuses_writes_inside(repo: Repo)
             pass
     assert not repo.db.conn.in_transaction
     repo.db.conn.execute("PRAGMA query_only = OFF")
+    with repo.snapshot(), pytest.raises(RuntimeError, match="read snapshot"):
+        repo.add_tour("written while reading")  # refused even where the file is writable
+    assert repo.tour_by_name("written while reading") is None
     with repo.transaction(), repo.snapshot():  # a snapshot inside a transaction joins it
         repo.add_tour("joined")
     assert repo.tour_by_name("joined") is not None
