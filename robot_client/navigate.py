@@ -64,6 +64,9 @@ def drive(
     actions: dict[str, int] = {}
     retry = params.retry_s
     retried = 0.0
+    # odometry counts since its last reading: start from now, so that what the wheels did
+    # before this task (the end of the one before, a push by hand) is not reported as its start
+    motors.odometry()
     while steps < params.max_steps:
         image = camera.read()
         if image is None:

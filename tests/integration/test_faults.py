@@ -20,6 +20,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -243,6 +244,42 @@ def test_navigation_resumes_after_sigkill_from_the_persisted_belief(
         assert repo.integrity_ok() and repo.short_edges() == []
     finally:
         repo.close()
+
+
+def test_the_first_frame_of_a_task_reports_no_motion_from_before_it(
+    taught: Taught, cleanup: list[ServerProcess]
+) -> None:
+    """Wheel odometry counts since its last reading: what the robot drove before a task (the
+    end of the task before, a push by hand) must not reach the first frame of this one."""
+    server = start_server(taught.db)
+    cleanup.append(server)
+    sent: list[tuple[float, float]] = []
+    with (
+        SimWorld(load_plan(), condition="same", seed=0) as world,
+        TeachRepeatClient(server.url, taught.token) as client,
+    ):
+        robot = SimulatedRobot(world, Pose(6.8, 4.75, 0.0), seed=0)
+        robot.command(0.3, 0.5)  # driven, never read
+        robot.sleep(0.1)
+        robot.stop()
+        upload = client.upload_frame
+
+        def spy(*args: Any, **kwargs: Any) -> Any:
+            sent.append((kwargs["v"], kwargs["w"]))
+            return upload(*args, **kwargs)
+
+        client.upload_frame = spy  # type: ignore[method-assign]
+        client.goto("rover", "kitchen")
+        drive(
+            client,
+            "rover",
+            camera=LoopCamera(taught.queries),
+            motors=robot,
+            clock=robot,
+            params=LoopParams(max_steps=3, wait_for_answer=True),
+        )
+    assert len(sent) == 3
+    assert sent[0] == (0.0, 0.0)
 
 
 @pytest.mark.slow
