@@ -513,8 +513,8 @@ class RobotSession:
         similarity: Similarity,
         summary: BeliefSummary,
         depth: npt.ArrayLike | None,
-        timestamp: float = 0.0,
-        dt: float = 0.0,
+        timestamp: float,
+        dt: float,
     ) -> Command:
         mp = self.params.motion
         action = decision.action
