@@ -63,6 +63,16 @@ class Edge:
             return 0.0
         return float(self.timestamps[-1] - self.timestamps[0])
 
+    def metres_along(self) -> FloatArray:
+        """``(n_images,)`` metres the taught robot had driven along the edge at each image: its
+        speeds ``|v|`` integrated over the timestamps (a step with a missing or backward
+        timestamp adds nothing)."""
+        if self.n_images == 0:
+            return np.zeros(0)
+        dt = np.diff(np.asarray(self.timestamps, dtype=np.float64))
+        steps = np.abs(np.asarray(self.v, dtype=np.float64)[:-1]) * np.clip(dt, 0.0, None)
+        return np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(steps), steps, 0.0))])
+
 
 @dataclass(frozen=True)
 class TourGraph:

@@ -46,6 +46,9 @@ class MotionParams:
     * ``depth_fov_deg`` (90): field of view the depth rays span (evenly, left to right).
     * ``dock_v`` (0.12): speed of the last creep onto a place when the view says the robot
       stopped short of it or went past it (``NavigationParams.dock``).
+    * ``backoff_v`` (0.1) and ``backoff_s`` (1.5 s): a robot that has driven against
+      something it cannot see (``NavigationParams.bump_s``) backs off at this speed for this
+      long, turning at ``spin_w`` toward the more open side (:func:`open_side`).
     * ``ttl_s`` (0.6): how long a command stays valid without a newer one.
     * ``found_similarity`` (0.5) and ``found_offset`` (0.06): RotateAndFindEdge has found its
       edge when the frame's similarity to the edge's departure image is at least the former
@@ -76,6 +79,8 @@ class MotionParams:
     avoid_switch_m: float = 0.3
     depth_fov_deg: float = 90.0
     dock_v: float = 0.12
+    backoff_v: float = 0.1
+    backoff_s: float = 1.5
     ttl_s: float = 0.6
     found_similarity: float = 0.5
     found_offset: float = 0.06
@@ -159,6 +164,26 @@ def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[
     return params.explore_v, w
 
 
+def open_side(depth: npt.ArrayLike | None, params: MotionParams) -> int:
+    """``+1`` when the left half of the depth profile is more open (mean range, each ray
+    counted up to ``open_m``) than the right, else ``-1``; ``+1`` without a depth profile."""
+    ranges = _ranges(depth)
+    if ranges is None:
+        return 1
+    left, right = _openness(ranges, params, float(ranges.min()))
+    return 1 if left >= right else -1
+
+
+def _openness(ranges: FloatArray, params: MotionParams, empty: float) -> tuple[float, float]:
+    """Mean range of the left and the right half of the profile, each ray counted up to
+    ``open_m``; ``empty`` for a half without rays."""
+    angles = ray_angles(len(ranges), params.depth_fov_deg)
+    counted = np.minimum(ranges, params.open_m)
+    left = float(counted[angles > 0].mean()) if np.any(angles > 0) else empty
+    right = float(counted[angles < 0].mean()) if np.any(angles < 0) else empty
+    return left, right
+
+
 def avoid_side(depth: npt.ArrayLike | None, params: MotionParams, previous: int = 0) -> int:
     """Which way obstacle avoidance turns: ``+1`` left, ``-1`` right, ``0`` nothing within
     ``avoid_start_m``.
@@ -176,10 +201,7 @@ def avoid_side(depth: npt.ArrayLike | None, params: MotionParams, previous: int 
     nearest = float(ranges.min())
     if nearest >= params.avoid_start_m:
         return 0
-    angles = ray_angles(len(ranges), params.depth_fov_deg)
-    counted = np.minimum(ranges, params.open_m)
-    left = float(counted[angles > 0].mean()) if np.any(angles > 0) else nearest
-    right = float(counted[angles < 0].mean()) if np.any(angles < 0) else nearest
+    left, right = _openness(ranges, params, nearest)
     if previous > 0 and right - left <= params.avoid_switch_m:
         return 1
     if previous < 0 and left - right <= params.avoid_switch_m:

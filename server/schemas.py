@@ -218,6 +218,11 @@ class MotionCommand(_Model):
     target_image_id: int | None = Field(
         default=None, description="Image the robot is homing on (Navigate)."
     )
+    behaviour: str = Field(
+        default="stand",
+        description="What the motion layer is doing: stand, follow, leave, search, explore, "
+        "unstick, backoff, dock or place-dock (server.session.BEHAVIOURS).",
+    )
 
 
 class StateProbability(_Model):

@@ -15,7 +15,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property, lru_cache
 
 import numpy as np
@@ -30,6 +30,7 @@ from server.motion import (
     avoid_side,
     explore_command,
     navigate_command,
+    open_side,
     rotate_command,
 )
 from server.policy.costs import CostParams, cost_to_goal
@@ -85,6 +86,14 @@ class NavigationParams:
       than ``dock_min_inliers`` matches agreeing on a scale cannot tell (a bare wall) and
       leaves the belief's word standing. In the simulated home the belief alone stopped 0.4-1.0
       m short of the place, or 1.4-3.4 m past it, in 7 of 50 runs with moved furniture.
+      When none of those images fits (the robot faces elsewhere), the goal's spin images are
+      tried (the three the engine ranks highest), and only when they do not fit either does
+      the belief's word stand.
+    * ``dock_second_axis`` (True): once docking along the edge has settled, the robot turns a
+      quarter turn and docks on the goal's spin images there, as place docking does on its
+      second axis, then arrives. Docking along the view cannot see a sideways offset: in the
+      simulated home a robot that came in along the living room's taught path 0.6 m to the
+      side of it stopped there.
     * ``place_dock`` (True), ``place_dock_ambiguity`` (0.5), ``place_dock_turns`` (1.25):
       a robot whose belief is at the goal before it came in along a taught edge first tries to
       dock on the place's own spin images, on two axes: it turns until the frame matches a spin
@@ -117,6 +126,19 @@ class NavigationParams:
       race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
       44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
       m off now arrive (0.06-0.48 m, replayed alone).
+    * ``search_zoomed`` (True), ``search_zoomed_similarity`` (0.3): RotateAndFindEdge from a
+      location also takes a view that matches an image where the taught robot set off through
+      a zoom of the frame (``dock_zooms``; ``dock_min_inliers`` agreeing on a scale, homing
+      offset within ``MotionParams.found_offset``), when the engine's similarity to it is at
+      least the latter but short of ``MotionParams.found_similarity``. A robot standing in the
+      room a metre off the place sees the way out larger or smaller than it was taught, and
+      turned round and round there without finding it. Zoom levels are extracted only on
+      such frames.
+    * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
+      forward that reports less than this fraction of the commanded speed for this long is
+      pressed against something its depth profile does not show (a chair's corner beside its
+      field of view); it backs off (``MotionParams.backoff_v`` for ``backoff_s``) turning
+      toward the more open side, then carries on. 0 disables it.
     * ``fresh_belief`` (True): a new task starts from the uniform prior (001's b0): the robot
       may have been carried since its last task, and a stale belief at the goal made it
       "arrive" in one second, metres away, in the simulated home.
@@ -155,6 +177,9 @@ class NavigationParams:
     place_dock_turns: float = 1.25
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
+    dock_second_axis: bool = True
+    search_zoomed: bool = True
+    search_zoomed_similarity: float = 0.3
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
@@ -162,6 +187,8 @@ class NavigationParams:
     lost_steps: int = 200
     frame_timeout_s: float = 5.0
     max_dt_s: float = 1.0
+    bump_s: float = 1.0
+    bump_fraction: float = 0.25
     history: int = 200
     signature_weights: tuple[float, ...] | None = None
     features: FeatureParams = field(default_factory=FeatureParams)
@@ -250,8 +277,7 @@ class TourRuntime:
         for j, e in enumerate(g.edges):
             if e.n_images == 0 or location not in (e.source, e.target):
                 continue
-            steps = np.abs(e.v[:-1]) * np.clip(np.diff(e.timestamps), 0.0, None)
-            along = np.concatenate([[0.0], np.cumsum(steps)])
+            along = e.metres_along()
             mine = np.zeros(e.n_images, dtype=bool)
             if e.source == location:
                 mine |= along <= near_m
@@ -340,10 +366,25 @@ class Task:
     place_m: float = 0.0
     place_log_scales: list[float] = field(default_factory=list)
     place_away_rad: float = 0.0  # radians turned while docking with the belief off the goal
+    second_axis: bool = False  # docking along the edge settled; the spin images' turn began
 
     def end(self, state: str, reason: str | None, now: float) -> None:
         if self.state == "underway":
             self.state, self.reason, self.ended_at = state, reason, now
+
+
+BEHAVIOURS: dict[str, str] = {
+    "stand": "standing still (no task, a task that ended, or DoNothing)",
+    "follow": "homing along a taught edge (Navigate)",
+    "leave": "driving onto the edge RotateAndFindEdge found",
+    "search": "turning to find an edge (RotateAndFindEdge)",
+    "explore": "heading for open space (Explore)",
+    "unstick": "exploring for a while: stuck, or a full search turn found nothing",
+    "backoff": "backing away from something the robot is pressed against",
+    "dock": "creeping onto the place the belief arrived at, until the view's scale agrees",
+    "place-dock": "docking on the goal's own spin images",
+}
+"""The values of :attr:`Command.behaviour`, with what they mean (shown on the dashboard)."""
 
 
 @dataclass(frozen=True)
@@ -354,6 +395,7 @@ class Command:
     w: float
     action: Action
     target_image: int | None = None  # canonical image index (Navigate)
+    behaviour: str = "stand"  # what the motion layer is doing (see BEHAVIOURS)
 
 
 class DockFrame:
@@ -412,6 +454,10 @@ class RobotSession:
         self.stall_driven = 0.0
         # the way obstacle avoidance turns while obstacles stay near (+1 left, -1 right, 0 none)
         self.avoid_side = 0
+        # bump reflex: robot seconds driven against something; backing off until, turning at
+        self.bumped_s = 0.0
+        self.backoff_until: float | None = None
+        self.backoff_w = 0.0
 
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed)."""
@@ -434,6 +480,7 @@ class RobotSession:
         self.unstick_until = None
         self.stall_since, self.stall_driven = None, 0.0
         self.avoid_side = 0
+        self.bumped_s, self.backoff_until = 0.0, None
         task.approached = task.approached or not self.needs_approach(task.goal)
 
     def needs_approach(self, goal: int) -> bool:
@@ -474,13 +521,14 @@ class RobotSession:
                 hold_goal=task.approached,
             )
             self._watch_stall(timestamp, v, dt)
-            command = self._command(decision, features, similarity, summary, depth, timestamp, dt)
             frame = DockFrame(image, features, p)
-            command = self._place_dock(task, summary, frame, similarity, depth, dt) or command
+            command = self._command(decision, frame, similarity, summary, depth, timestamp, dt)
+            placing = self._place_dock(task, summary, frame, similarity, depth, dt)
+            command = self._bump(placing or command, v, depth, timestamp, dt)
             self._track_approach(task, command, dt)
-            there = self._belief_arrived(task, summary)
+            there = placing is None and self._belief_arrived(task, summary)
             if there:
-                docking, there = self._dock(task, frame, depth, dt)
+                docking, there = self._dock(task, frame, similarity, depth, dt)
                 command = docking or command
             else:
                 task.dock_log_scales.clear()
@@ -509,7 +557,7 @@ class RobotSession:
     def _command(
         self,
         decision: Decision,
-        features: ImageFeatures,
+        frame: DockFrame,
         similarity: Similarity,
         summary: BeliefSummary,
         depth: npt.ArrayLike | None,
@@ -518,8 +566,8 @@ class RobotSession:
     ) -> Command:
         mp = self.params.motion
         action = decision.action
-        target: int | None
-        if self.unstick_until is not None and _elapsed(self.unstick_until, timestamp) > 0:
+        unsticking = self.unstick_until is not None and _elapsed(self.unstick_until, timestamp) > 0
+        if unsticking:
             action = Action.explore()  # unsticking (watchdog or a fruitless search), see _unstick
         elif action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self.leaving = None
@@ -528,21 +576,20 @@ class RobotSession:
         if action.kind == ActionKind.NAVIGATE and decision.active_edge is not None:
             edge = decision.active_edge
             k = decision.target_image if decision.target_image is not None else 0
-            v, w, target = self._follow(edge, k, features)
-            action = Action.navigate(edge)
+            c = self._follow(edge, k, frame.features)
         elif action.kind == ActionKind.ROTATE_AND_FIND_EDGE and action.edge is not None:
             at_location = summary.map_state < self.runtime.graph.n_locations
-            v, w, target, action = self._find_edge(
-                action.edge, features, similarity, at_location=at_location
-            )
-            if action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
-                v, w, action = self._unstick(v, w, action, depth, timestamp, dt)
+            c = self._find_edge(action.edge, frame, similarity, at_location=at_location)
+            if c.action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
+                c = self._unstick(c, depth, timestamp, dt)
         elif action.kind == ActionKind.EXPLORE:
-            (v, w), target = explore_command(depth, mp), None
+            c = Command(
+                *explore_command(depth, mp), action, None, "unstick" if unsticking else "explore"
+            )
         else:
-            v, w, target = 0.0, 0.0, None
-        v, w = self._avoid(v, w, depth)
-        return Command(v, w, action, target)
+            c = Command(0.0, 0.0, action)
+        v, w = self._avoid(c.v, c.w, depth)
+        return replace(c, v=v, w=w)
 
     def _avoid(self, v: float, w: float, depth: npt.ArrayLike | None) -> tuple[float, float]:
         """Obstacle avoidance, turning the same way as on the last frame while obstacles stay
@@ -551,8 +598,10 @@ class RobotSession:
         self.avoid_side = avoid_side(depth, mp, self.avoid_side)
         return avoid_obstacles(v, w, depth, mp, side=self.avoid_side)
 
-    def _follow(self, edge: int, k: int, features: ImageFeatures) -> tuple[float, float, int]:
-        """Visual homing on image ``k`` of ``edge``: ``(v, w, canonical target index)``."""
+    def _follow(
+        self, edge: int, k: int, features: ImageFeatures, behaviour: str = "follow"
+    ) -> Command:
+        """Visual homing on image ``k`` of ``edge`` (Navigate)."""
         rt = self.runtime
         e = rt.graph.edges[edge]
         k = int(np.clip(k, 0, e.n_images - 1))
@@ -561,7 +610,7 @@ class RobotSession:
         # the motion replayed is that of the next image that moves. None left: the edge ends.
         moving = rt.moving_from(edge, k)
         if moving is None:
-            return 0.0, 0.0, target
+            return Command(0.0, 0.0, Action.navigate(edge), target, behaviour)
         homing = homing_offset(features, rt.features[target])
         offset = None if homing is None else float(homing.offset)
         v, w = navigate_command(
@@ -570,7 +619,34 @@ class RobotSession:
             taught_w=float(e.w[moving]),
             params=self.params.motion,
         )
-        return v, w, target
+        return Command(v, w, Action.navigate(edge), target, behaviour)
+
+    def _bump(
+        self, command: Command, v: float, depth: npt.ArrayLike | None, now: float, dt: float
+    ) -> Command:
+        """Back off from what the robot is pressed against (``NavigationParams.bump_s``).
+
+        ``v``: the forward speed the robot reported for the last frame (m/s); ``command`` the
+        one decided for this frame, returned unchanged unless the robot is backing off."""
+        p = self.params
+        mp = p.motion
+        last = self.last_command
+        if self.backoff_until is not None:
+            if _elapsed(self.backoff_until, now) > 0:
+                return Command(-mp.backoff_v, self.backoff_w, Action.do_nothing(), None, "backoff")
+            self.backoff_until = None
+        if p.bump_s <= 0 or last is None or last.v < mp.min_v / 2:
+            self.bumped_s = 0.0
+            return command
+        self.bumped_s = self.bumped_s + dt if v < p.bump_fraction * last.v else 0.0
+        if self.bumped_s < p.bump_s:
+            return command
+        # back away turning toward the more open side, so the next try comes in at an angle
+        self.bumped_s = 0.0
+        self.backoff_until = now + mp.backoff_s
+        self.backoff_w = mp.spin_w * open_side(depth, mp)
+        self.stall_since = None
+        return Command(-mp.backoff_v, self.backoff_w, Action.do_nothing(), None, "backoff")
 
     def _watch_stall(self, now: float, v: float, dt: float) -> None:
         """Stall watchdog: after ``stall_s`` of robot time with less than ``stall_m`` driven,
@@ -589,14 +665,8 @@ class RobotSession:
             self.leaving = None
 
     def _unstick(
-        self,
-        v: float,
-        w: float,
-        action: Action,
-        depth: npt.ArrayLike | None,
-        now: float,
-        dt: float,
-    ) -> tuple[float, float, Action]:
+        self, command: Command, depth: npt.ArrayLike | None, now: float, dt: float
+    ) -> Command:
         """Count the turning done while searching; after ``find_turns`` full turns without
         finding the edge, explore toward open space for ``unstick_s``, then search again.
         ``dt``: robot seconds since the last frame, as :meth:`step` clipped them."""
@@ -604,31 +674,35 @@ class RobotSession:
         if self.unstick_until is not None:  # explored (see _command): search afresh
             self.unstick_until = None
             self.searched_rad = 0.0
-        self.searched_rad += abs(w) * dt
+        self.searched_rad += abs(command.w) * dt
         if self.searched_rad >= 2 * np.pi * mp.find_turns:
             self.unstick_until = now + mp.unstick_s
-            ev, ew = explore_command(depth, mp)
-            return ev, ew, Action.explore()
-        return v, w, action
+            return Command(*explore_command(depth, mp), Action.explore(), None, "unstick")
+        return command
 
     def _find_edge(
         self,
         edge: int,
-        features: ImageFeatures,
+        frame: DockFrame,
         similarity: Similarity,
         *,
         at_location: bool,
-    ) -> tuple[float, float, int | None, Action]:
+    ) -> Command:
         """RotateAndFindEdge: spin until the view lines up with an image of the edge, then
         drive onto the edge from there (reported as Navigate, so the belief follows onto it)
         and keep going while the frames still match the edge.
 
         From a location the sought images are those around where the taught robot began to move
         forward (not the turn on the spot before it: the spin itself finds the heading);
-        turning back on an edge, anywhere along the reverse edge.
+        turning back on an edge, anywhere along the reverse edge. From a location the view
+        also counts when it matches one of those images through a zoom of the frame
+        (``NavigationParams.search_zoomed``): a robot standing in the room off the place sees
+        the way out larger or smaller than it was taught.
         """
         rt = self.runtime
-        mp = self.params.motion
+        p = self.params
+        mp = p.motion
+        features = frame.features
         e = rt.graph.edges[edge]
         if self.leaving is not None and self.leaving[0] == edge:
             _, k, misses = self.leaving
@@ -641,8 +715,7 @@ class RobotSession:
             if misses < mp.lost_steps and k < e.n_images - 1:
                 self.leaving = (edge, k, misses)
                 self.searched_rad = 0.0
-                v, w, target = self._follow(edge, k + 1, features)
-                return v, w, target, Action.navigate(edge)
+                return self._follow(edge, k + 1, features, "leave")
         self.leaving = None
         last = e.n_images - 1
         lo, hi = (
@@ -659,13 +732,25 @@ class RobotSession:
         if homing is not None and view >= mp.found_similarity and not ends_here:
             if abs(homing.offset) <= mp.found_offset:
                 self.leaving = (edge, best, 0)
-                v, w, target = self._follow(edge, best + 1, features)
-                return v, w, target, Action.navigate(edge)
+                return self._follow(edge, best + 1, features, "leave")
             if homing.n_matches >= mp.toward_matches and abs(homing.offset) <= mp.toward_offset:
-                v, w = rotate_command(mp, toward=float(homing.offset))
-                return v, w, target, Action.rotate(edge)
-        v, w = rotate_command(mp)
-        return v, w, target, Action.rotate(edge)
+                turn = rotate_command(mp, toward=float(homing.offset))
+                return Command(*turn, Action.rotate(edge), target, "search")
+        elif at_location and p.search_zoomed and view >= p.search_zoomed_similarity:
+            k, fit = self._best_view(frame, window)
+            j = lo + window.index(k)
+            if (
+                fit is not None
+                and fit.inliers >= p.dock_min_inliers
+                and rt.moving_from(edge, min(j + 1, last)) is not None
+            ):
+                if abs(fit.offset) <= mp.found_offset:
+                    self.leaving = (edge, j, 0)
+                    return self._follow(edge, j + 1, features, "leave")
+                if abs(fit.offset) <= mp.toward_offset:
+                    turn = rotate_command(mp, toward=float(fit.offset))
+                    return Command(*turn, Action.rotate(edge), k, "search")
+        return Command(*rotate_command(mp), Action.rotate(edge), target, "search")
 
     def _track_approach(self, task: Task, command: Command, dt: float) -> None:
         """Count the robot time spent following a taught edge into the goal (``approach_s``)."""
@@ -715,8 +800,10 @@ class RobotSession:
         p = self.params
         mp = p.motion
         rt = self.runtime
-        if not p.place_dock or task.approached or task.place_phase in ("done", "off"):
+        if not p.place_dock or task.place_phase in ("done", "off"):
             return None
+        if task.approached and task.place_phase == "idle":
+            return None  # came in along an edge: docking proper (and its second axis) decides
         last = self.last_command
         if task.place_phase != "idle" and last is not None:  # as commanded, like docking
             task.place_rad += abs(last.w) * dt
@@ -736,7 +823,7 @@ class RobotSession:
                 return None
             self._place_phase(task, "look")
         self.stall_since = None  # turning on the spot on purpose is not being stuck
-        turn = Command(*rotate_command(mp), Action.do_nothing())
+        turn = Command(*rotate_command(mp), Action.do_nothing(), None, "place-dock")
         if task.place_phase == "turn":
             if task.place_rad < np.pi / 2:
                 return turn
@@ -749,7 +836,8 @@ class RobotSession:
                     task.place_phase = "off"  # nothing to dock on: the round trip takes over
                     return None
                 if fit is not None and seen:  # in sight: turn toward it, slowing down
-                    return Command(*rotate_command(mp, toward=fit.offset), Action.do_nothing())
+                    toward = rotate_command(mp, toward=fit.offset)
+                    return Command(*toward, Action.do_nothing(), None, "place-dock")
                 return turn
             self._place_phase(task, "creep")
             task.place_target = target
@@ -762,7 +850,7 @@ class RobotSession:
         settled = not (short or (past and p.dock_reverse))
         if settled and len(task.place_log_scales) < 3 and task.place_m < p.dock_max_m:
             # one fit may be off (parallax at close range): hold still until three agree
-            return Command(0.0, 0.0, Action.do_nothing(), target)
+            return Command(0.0, 0.0, Action.do_nothing(), target, "place-dock")
         if task.place_m >= p.dock_max_m or settled:
             task.place_axes += 1
             if task.place_axes >= 2:
@@ -775,7 +863,7 @@ class RobotSession:
         v = mp.dock_v if short else -mp.dock_v
         if short:
             v, w = self._avoid(v, w, depth)
-        return Command(v, w, Action.do_nothing(), target)
+        return Command(v, w, Action.do_nothing(), target, "place-dock")
 
     @staticmethod
     def _place_phase(task: Task, phase: str) -> None:
@@ -804,7 +892,12 @@ class RobotSession:
         return best
 
     def _dock(
-        self, task: Task, frame: DockFrame, depth: npt.ArrayLike | None, dt: float
+        self,
+        task: Task,
+        frame: DockFrame,
+        similarity: Similarity,
+        depth: npt.ArrayLike | None,
+        dt: float,
     ) -> tuple[Command | None, bool]:
         """The view's word on an arrival the belief has called (see ``NavigationParams.dock``).
 
@@ -813,25 +906,45 @@ class RobotSession:
         p = self.params
         mp = p.motion
         edge = task.approach_edge
-        if not p.dock or edge is None:
-            return None, True
+        if not p.dock or edge is None or task.second_axis:
+            return None, True  # (the second axis ends in place docking's own verdict)
         if task.dock_log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             task.dock_m += mp.dock_v * dt
         target, fit = self._place_view(edge, frame)
         if fit is None or fit.inliers < p.dock_min_inliers:
+            # the edge's last views do not show (the robot faces elsewhere): the place's own
+            target, fit = self._spin_view(task.goal, frame, similarity)
+        if fit is None or fit.inliers < p.dock_min_inliers:
             task.dock_log_scales.clear()
-            return None, True
+            return self._second_axis(task), task.second_axis is False
         short, past = self._scale_verdict(task.dock_log_scales, fit)
         if task.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
             task.dock_log_scales.clear()
+            turn = self._second_axis(task)
+            if turn is not None:
+                return turn, False
             return Command(0.0, 0.0, Action.navigate(edge), target), True
         _, w = navigate_command(fit.offset, taught_v=0.0, taught_w=0.0, params=mp)
         if short:
             v_cmd, w = self._avoid(mp.dock_v, w, depth)
-            return Command(v_cmd, w, Action.navigate(edge), target), False
+            return Command(v_cmd, w, Action.navigate(edge), target, "dock"), False
         # backing up the way it came: the tracker has no backward motion, so it holds still
-        return Command(-mp.dock_v, w, Action.do_nothing(), target), False
+        return Command(-mp.dock_v, w, Action.do_nothing(), target, "dock"), False
+
+    def _second_axis(self, task: Task) -> Command | None:
+        """Start docking on the goal's spin images a quarter turn on from where docking along
+        the edge settled (``NavigationParams.dock_second_axis``): the turn command, or ``None``
+        when there is no second axis to dock (off, already done, or no spin images)."""
+        p = self.params
+        if not (p.dock_second_axis and p.place_dock) or task.second_axis:
+            return None
+        if len(self.runtime.spin_images[task.goal]) == 0:
+            return None
+        task.second_axis = True
+        self._place_phase(task, "turn")
+        task.place_axes, task.place_away_rad = 1, 0.0
+        return Command(*rotate_command(self.params.motion), Action.do_nothing(), None, "dock")
 
     def _scale_verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
         """Add ``fit``'s scale to ``log_scales`` (the last three are kept) and say from their

@@ -31,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how the home differs from when it was taught",
     )
     parser.add_argument("--max-steps", type=int, default=1500, help="frames per trial at most")
+    parser.add_argument(
+        "--only",
+        type=_trial_list,
+        default=None,
+        help="run only these trials (comma-separated numbers, e.g. 2,5,14); the others are "
+        "drawn but not driven, so each one replays as it went in the full run",
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument(
         "--trace",
@@ -39,6 +46,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write every step of every trial (true pose, command, top beliefs) to "
         "DIR/trial_NNN.jsonl, to see why a trial failed",
     )
+
+
+def _trial_list(text: str) -> frozenset[int]:
+    try:
+        trials = frozenset(int(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--only takes trial numbers like 2,5,14, not {text!r}"
+        ) from None
+    if not trials or min(trials) < 0:
+        raise argparse.ArgumentTypeError(f"--only takes trial numbers >= 0, not {text!r}")
+    return trials
 
 
 def _start_pose(world: Any, plan: Any, rng: np.random.Generator, trial: int) -> Any:
@@ -66,6 +85,7 @@ def _tracer(robot: Any, out: list[dict[str, Any]]) -> Any:
                 "t": round(robot.now(), 2),
                 "pose": [round(pose.x, 3), round(pose.y, 3), round(pose.theta, 3)],
                 "action": c.action,
+                "behaviour": c.behaviour,
                 "edge": c.edge,
                 "target_image": c.target_image_id,
                 "v": round(c.v, 3),
@@ -107,11 +127,14 @@ def run(args: argparse.Namespace) -> int:
         with SimWorld(plan, condition=args.condition, seed=args.seed) as world:
             robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
             for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
-                robot.teleport(_start_pose(world, plan, np_rng, trial))
+                start = _start_pose(world, plan, np_rng, trial)
+                goal = rng.choice(names)
+                if args.only is not None and trial not in args.only:
+                    continue  # drawn as in the full run, not driven
+                robot.teleport(start)
                 # every trial seeds its own noise: what happens in one trial does not change
                 # the noise of the next, so two versions of the code compare trial by trial
                 robot.reseed(args.seed * 1000 + trial)
-                goal = rng.choice(names)
                 trace: list[dict[str, Any]] = []
                 result = run_trial(
                     client,

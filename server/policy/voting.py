@@ -6,7 +6,9 @@ its belief; the action with the most vote mass wins (ties go to Navigate).
 * the goal location votes ``DoNothing`` - unless ``hold_goal`` is False, when it votes like any
   other location, for its cheapest round trip out and back in (beyond 001: the session asks for
   that until the robot has come into the goal along a taught edge, see
-  :attr:`server.session.NavigationParams.approach_s`);
+  :attr:`server.session.NavigationParams.approach_s`); the first ``round_trip_m`` of every edge
+  leaving the goal then vote ``Navigate``, so the robot goes out far enough to come back in
+  along a stretch of taught path;
 * an edge image votes ``Navigate`` if going on (rest of the edge + cost of its target) is not
   dearer than turning back (half a turn + the reverse edge from the mirrored image + cost of the
   origin), else ``RotateAndFindEdge(reverse edge)``; an edge with no reverse edge can only go on;
@@ -54,11 +56,18 @@ class PolicyParams:
       two places of a 10-state tour is 0.3, over half the states ~0.7).
     * ``tie_tolerance`` (1e-9): vote masses closer than this count as tied; ties go to Navigate,
       then RotateAndFindEdge, then DoNothing, then Explore.
+    * ``round_trip_m`` (1.5 m): with ``hold_goal`` False, images of an edge leaving the goal
+      taught less than this far (by the taught speeds) from where the edge starts vote
+      ``Navigate`` rather than turning back. Turning back as soon as it is cheapest (at once,
+      just outside the goal) left no taught path to come back in along: in the simulated home
+      the robot drove a few frames out, turned round, found itself at the goal again, and set
+      off once more, for the rest of the trial.
     * ``costs``: robot timing used for turning back on an edge (:class:`CostParams`).
     """
 
     explore_entropy: float = 0.8
     tie_tolerance: float = 1e-9
+    round_trip_m: float = 1.5
     costs: CostParams = field(default_factory=CostParams)
 
 
@@ -105,7 +114,8 @@ def build_vote_plan(
 
     ``hold_goal`` False: the goal location votes RotateAndFindEdge for the outgoing edge of the
     cheapest round trip (edge cost + cost back from its target) instead of DoNothing; a goal
-    without such an edge still votes DoNothing.
+    without such an edge still votes DoNothing. The images of edges leaving the goal within
+    ``params.round_trip_m`` of their start then cannot turn back (they vote Navigate).
     """
     p = params if params is not None else PolicyParams()
     cost = np.asarray(costs, dtype=np.float64)
@@ -151,6 +161,8 @@ def build_vote_plan(
             better = c < back
             back = np.where(better, c, back)
             back_edge = np.where(better, r, back_edge)
+        if not hold_goal and e.source == goal:
+            back = np.where(e.metres_along() < p.round_trip_m, np.inf, back)
         v = np.where(go_on <= back, NAVIGATE, ROTATE0 + back_edge)
         v = np.where(np.isinf(go_on) & np.isinf(back), EXPLORE, v)
         vote[L + lo : L + hi] = v

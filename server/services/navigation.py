@@ -367,6 +367,7 @@ class NavigationService:
             target_image_id=None
             if command.target_image is None
             else int(graph.image_ids[command.target_image]),
+            behaviour=command.behaviour,
         )
 
     def state(self, robot: str) -> schemas.NavigationState | None:

@@ -107,7 +107,7 @@ def test_without_the_approach_rule_the_robot_arrives_where_it_stands() -> None:
 
 
 def test_coming_in_along_an_edge_into_the_goal_arrives() -> None:
-    s = session()
+    s = session(dock_second_axis=False)  # these views do not turn with the robot
     s.start_task(Task(id=1, goal=B, goal_name="B", started_at=0.0))
     a_to_b = [scene(int(i)) for i in GRAPH.edges[0].image_ids]
     frames = a_to_b + [spin_image(B, k % 4) for k in range(20)]
@@ -149,11 +149,41 @@ def _watchdog_explores(s: RobotSession, v: float, steps: int = 40) -> list[bool]
 
 
 def test_a_robot_that_does_not_get_anywhere_explores_for_a_while() -> None:
-    stuck = _watchdog_explores(session(stall_s=2.0), v=0.0)
+    # the bump reflex off: this robot is not told to drive forward only
+    stuck = _watchdog_explores(session(stall_s=2.0, bump_s=0.0), v=0.0)
     first = stuck.index(True)
     assert 19 <= first <= 21  # after 2 s of robot time at 10 frames/s
     # it explores for unstick_s (4 s = 40 frames here), then carries on
     assert all(stuck[first : first + 19])
+
+
+def _pressed(s: RobotSession, reported_v: float, steps: int = 40) -> list[tuple[float, float]]:
+    """Drive along A -> B reporting ``reported_v`` whatever was commanded: (v, w) per step."""
+    s.start_task(Task(id=1, goal=C, goal_name="C", started_at=0.0))
+    a_to_b = GRAPH.edges[0].image_ids
+    depth = np.r_[np.full(8, 1.5), np.full(8, 0.6)]  # more open on the left
+    out = []
+    for i in range(steps):
+        k = min(3 + i, len(a_to_b) - 1)
+        rec = s.step(scene(int(a_to_b[k])), timestamp=0.1 * (i + 1), v=reported_v, depth=depth)
+        out.append((rec.command.v, rec.command.w))
+    return out
+
+
+def test_a_robot_pressed_against_something_backs_off_turning_to_the_open_side() -> None:
+    commands = _pressed(session(stall_s=0.0), reported_v=0.0)
+    back = [i for i, (v, _) in enumerate(commands) if v < 0]
+    assert back
+    # after bump_s (1 s = 10 frames) of commanded forward motion going nowhere
+    before = [v > 0 for v, _ in commands[: back[0]]]
+    assert before[-11:] == [True] * 11 and not before[-12]
+    # backs off for backoff_s (1.5 s = 15 frames), turning left, toward the open side
+    run = back[: next((n for n, i in enumerate(back) if i != back[0] + n), len(back))]
+    assert len(run) == pytest.approx(15, abs=1)
+    assert all(commands[i][1] > 0 for i in run)
+    # a robot that moves as told never backs off, nor one with the reflex off
+    assert all(v >= 0 for v, _ in _pressed(session(stall_s=0.0), reported_v=0.3))
+    assert all(v >= 0 for v, _ in _pressed(session(stall_s=0.0, bump_s=0.0), reported_v=0.0))
 
 
 def test_the_stall_watchdog_leaves_a_moving_robot_alone() -> None:
@@ -162,7 +192,7 @@ def test_the_stall_watchdog_leaves_a_moving_robot_alone() -> None:
 
 
 def test_the_approach_must_be_the_last_move_before_arriving() -> None:
-    s = session()
+    s = session(bump_s=0.0)  # the speeds reported here are not answers to the commands
     task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
     s.start_task(task)
     t = 0.0
@@ -184,7 +214,8 @@ def _come_in_to_b(
 ) -> tuple[Task, list[Command], list[float]]:
     """Carry the robot along A -> B, then feed ``view(driven_m)``: the frame after driving
     ``driven_m`` metres (by the commands it was given) beyond the end of the edge. Returns the
-    task, the commands after the edge and the metres driven when each was given."""
+    task, the commands after the edge and the metres driven when each was given. (The views
+    do not turn with the robot: give ``s`` ``dock_second_axis=False``.)"""
     task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
     s.start_task(task)
     t = 0.0
@@ -210,7 +241,8 @@ LAST_A_TO_B = scene(int(GRAPH.edges[0].image_ids[-1]))
 def test_a_robot_that_stopped_short_of_the_place_creeps_on_until_the_view_agrees() -> None:
     # the scene looks 20 % smaller than in the last taught image until 0.3 m further on
     task, commands, where = _come_in_to_b(
-        session(), lambda m: LAST_A_TO_B if m >= 0.3 else zoomed(LAST_A_TO_B, 1 / 1.2)
+        session(dock_second_axis=False),
+        lambda m: LAST_A_TO_B if m >= 0.3 else zoomed(LAST_A_TO_B, 1 / 1.2),
     )
     dock_v = NavigationParams().motion.dock_v
     creeping = [c for c in commands if c.v == pytest.approx(dock_v)]
@@ -221,7 +253,8 @@ def test_a_robot_that_stopped_short_of_the_place_creeps_on_until_the_view_agrees
 
 def test_a_robot_that_went_past_the_place_backs_up_until_the_view_agrees() -> None:
     task, commands, where = _come_in_to_b(
-        session(), lambda m: LAST_A_TO_B if m <= -0.3 else zoomed(LAST_A_TO_B, 1.2)
+        session(dock_second_axis=False),
+        lambda m: LAST_A_TO_B if m <= -0.3 else zoomed(LAST_A_TO_B, 1.2),
     )
     backing = [c for c in commands if c.v < 0]
     assert backing and all(c.action.kind == ActionKind.DO_NOTHING for c in backing)
@@ -238,14 +271,18 @@ def test_without_docking_the_belief_alone_arrives_short_of_the_place() -> None:
 
 
 def test_docking_gives_up_after_dock_max_m_and_arrives() -> None:
-    task, _, where = _come_in_to_b(session(dock_max_m=0.4), lambda m: zoomed(LAST_A_TO_B, 1 / 1.2))
+    task, _, where = _come_in_to_b(
+        session(dock_max_m=0.4, dock_second_axis=False), lambda m: zoomed(LAST_A_TO_B, 1 / 1.2)
+    )
     assert task.state == "arrived"
     assert 0.4 <= where[-1] <= 0.4 + 0.1 * 0.12 * 4
 
 
 def test_a_robot_that_cannot_move_gives_up_docking_as_soon() -> None:
     task, commands, _ = _come_in_to_b(
-        session(dock_max_m=0.4), lambda m: zoomed(LAST_A_TO_B, 1 / 1.2), blocked=True
+        session(dock_max_m=0.4, dock_second_axis=False),
+        lambda m: zoomed(LAST_A_TO_B, 1 / 1.2),
+        blocked=True,
     )
     assert task.state == "arrived"
     dock_v = NavigationParams().motion.dock_v
@@ -256,7 +293,7 @@ def test_a_robot_that_cannot_move_gives_up_docking_as_soon() -> None:
 def test_a_view_that_cannot_tell_leaves_the_arrival_to_the_belief() -> None:
     # blurred: the place still looks right overall, but no corners to measure a scale on
     blurred = cv2.GaussianBlur(zoomed(LAST_A_TO_B, 1 / 1.2), (0, 0), 4)
-    task, commands, _ = _come_in_to_b(session(), lambda m: blurred)
+    task, commands, _ = _come_in_to_b(session(dock_second_axis=False), lambda m: blurred)
     assert task.state == "arrived"
     dock_v = NavigationParams().motion.dock_v
     assert not any(abs(c.v) == pytest.approx(dock_v) for c in commands)
@@ -288,14 +325,23 @@ BLANK = np.full((240, 320, 3), 128, np.uint8)
 
 
 def _stand_near_b(
-    s: RobotSession, x: float, y: float, theta: float, steps: int = 600
+    s: RobotSession,
+    x: float,
+    y: float,
+    theta: float,
+    steps: int = 600,
+    *,
+    came_in_on: int | None = None,
 ) -> tuple[Task, list[Command], tuple[float, float, float]]:
     """The robot stands near place B at ``(x, y)`` m from it, heading ``theta``; B's four spin
     images face 0, 90, 180 and 270 degrees. Facing within 20 degrees of one, the camera sees it
     magnified by ``1 + d / 1.5`` (``d``: metres the robot stands ahead of the place in that
-    direction); in between, nothing it can match. Commands move the robot as commanded."""
+    direction); in between, nothing it can match. Commands move the robot as commanded.
+    ``came_in_on``: the robot has just come into B along this edge (the approach is done)."""
     task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
     s.start_task(task)
+    if came_in_on is not None:
+        task.approached, task.approach_edge = True, came_in_on
     commands: list[Command] = []
     t = 0.0
     for _ in range(steps):
@@ -330,6 +376,21 @@ def test_a_robot_off_the_spot_in_the_goal_room_docks_on_two_axes_and_arrives() -
     assert np.hypot(x, y) < 0.15, (x, y)
 
 
+def test_docking_after_an_edge_settles_a_second_axis_on_the_spin_images() -> None:
+    # came in along A -> B facing along x, 0.25 m short and 0.3 m to the side of the place:
+    # docking along the view fixes x, the quarter turn and the spin image there fix y
+    task, commands, (x, y, _) = _stand_near_b(session(), -0.25, 0.3, 0.0, came_in_on=0)
+    assert task.state == "arrived" and task.second_axis and task.place_phase == "done"
+    assert np.hypot(x, y) < 0.15, (x, y)
+    assert {c.behaviour for c in commands} >= {"dock", "place-dock"}
+    # one axis only: the sideways 0.3 m stay
+    task, _, (x, y, _) = _stand_near_b(
+        session(dock_second_axis=False), -0.25, 0.3, 0.0, came_in_on=0
+    )
+    assert task.state == "arrived" and not task.second_axis
+    assert abs(x) < 0.12 and abs(y - 0.3) < 0.05, (x, y)
+
+
 def test_without_place_docking_the_robot_leaves_by_the_round_trip() -> None:
     s = session(place_dock=False)
     task, commands, _ = _stand_near_b(s, -0.3, 0.25, 0.3, steps=60)
@@ -352,7 +413,7 @@ def test_a_place_with_nothing_to_dock_on_falls_back_to_the_round_trip() -> None:
     s.start_task(task)
     phases = []
     for i in range(400):
-        rec = s.step(blurred[i % 4], timestamp=0.1 * (i + 1), v=0.0, w=rec_w(s))
+        rec = s.step(blurred[i % 4], timestamp=0.1 * (i + 1), v=rec_v(s), w=rec_w(s))
         phases.append(task.place_phase)
     assert "look" in phases and phases[-1] == "off"
     turned = 2 * np.pi * NavigationParams().place_dock_turns

@@ -98,6 +98,27 @@ def test_a_goal_not_yet_approached_votes_for_its_cheapest_round_trip() -> None:
     assert d.action == Action.do_nothing()
 
 
+def test_a_round_trip_goes_out_far_enough_to_come_back_along_taught_path() -> None:
+    costs = cost_to_goal(G, OFFICE)
+    # office -> kitchen (edge 3) is taught at 0.3 m/s, 0.15 m per image: 1.5 m is image 10
+    near, far = img(G, 3, 2), img(G, 3, 15)
+    held = build_vote_plan(G, OFFICE, costs)
+    out = build_vote_plan(G, OFFICE, costs, hold_goal=False)
+    # 0.3 m out, turning back onto kitchen -> office is cheapest, but coming back from there
+    # would not be an approach: the round trip goes on
+    assert held.vote[near] == 3 + 2
+    assert out.vote[near] == 0  # Navigate
+    # 2.25 m out it turns round as usual
+    assert held.vote[far] == out.vote[far] == 3 + 2
+    # edges that do not leave the goal are not affected
+    assert np.array_equal(
+        held.vote[img(G, 2, 0) : img(G, 2, 20) + 1], out.vote[img(G, 2, 0) : img(G, 2, 20) + 1]
+    )
+    # no commitment at all: the plain vote
+    bare = build_vote_plan(G, OFFICE, costs, PolicyParams(round_trip_m=0.0), hold_goal=False)
+    assert bare.vote[near] == 3 + 2
+
+
 def test_a_goal_with_no_way_out_does_nothing_even_when_not_approached() -> None:
     plan = build_vote_plan(G, GARAGE, cost_to_goal(G, GARAGE), hold_goal=False)
     assert plan.vote[GARAGE] == 1  # DoNothing
@@ -160,13 +181,15 @@ def test_explore_when_flat_or_no_route() -> None:
     assert d.action.kind is not ActionKind.EXPLORE
 
 
-def naive_votes(graph: TourGraph, goal: int, costs: np.ndarray, p: PolicyParams) -> list[Action]:
+def naive_votes(
+    graph: TourGraph, goal: int, costs: np.ndarray, p: PolicyParams, hold_goal: bool = True
+) -> list[Action]:
     """One action per fine state, with plain loops (the reference for the vectorised plan)."""
     L = graph.n_locations
     turn = p.costs.turn_into_edge_s
     out: list[Action] = []
     for k in range(L):
-        if k == goal:
+        if k == goal and hold_goal:
             out.append(Action.do_nothing())
             continue
         options = [
@@ -175,12 +198,21 @@ def naive_votes(graph: TourGraph, goal: int, costs: np.ndarray, p: PolicyParams)
             if e.source == k and e.n_images
         ]
         best = min(options, default=(math.inf, -1))
-        out.append(Action.rotate(best[1]) if math.isfinite(best[0]) else Action.explore())
+        if math.isfinite(best[0]):
+            out.append(Action.rotate(best[1]))
+        else:
+            out.append(Action.do_nothing() if k == goal else Action.explore())
     for e in graph.edges:
+        driven = 0.0
         for k in range(e.n_images):
+            if k:
+                driven += abs(e.v[k - 1]) * max(e.timestamps[k] - e.timestamps[k - 1], 0.0)
             go_on = (e.timestamps[-1] - e.timestamps[k]) + costs[e.target]
             back, back_edge = math.inf, -1
+            committed = not hold_goal and e.source == goal and driven < p.round_trip_m
             for r, f in enumerate(graph.edges):
+                if committed:
+                    break
                 if (f.source, f.target) != (e.target, e.source) or not f.n_images:
                     continue
                 frac = k / (e.n_images - 1) if e.n_images > 1 else 0.5
@@ -197,12 +229,13 @@ def naive_votes(graph: TourGraph, goal: int, costs: np.ndarray, p: PolicyParams)
     return out
 
 
+@pytest.mark.parametrize("hold_goal", [True, False])
 @pytest.mark.parametrize("goal", [HALL, KITCHEN, OFFICE, BEDROOM, GARAGE])
-def test_vote_plan_equals_naive_reference(goal: int) -> None:
+def test_vote_plan_equals_naive_reference(goal: int, hold_goal: bool) -> None:
     p = PolicyParams()
     costs = cost_to_goal(G, goal)
-    plan = build_vote_plan(G, goal, costs, p)
-    want = naive_votes(G, goal, costs, p)
+    plan = build_vote_plan(G, goal, costs, p, hold_goal=hold_goal)
+    want = naive_votes(G, goal, costs, p, hold_goal)
     code = {ActionKind.NAVIGATE: 0, ActionKind.DO_NOTHING: 1, ActionKind.EXPLORE: 2}
     got = [
         Action.rotate(int(v) - 3) if v >= 3 else Action(next(k for k, c in code.items() if c == v))
@@ -214,7 +247,9 @@ def test_vote_plan_equals_naive_reference(goal: int) -> None:
     for _ in range(20):
         b = rng.random(G.n_fine) ** 8
         b /= b.sum()
-        d = decide(G, b, goal, costs, PolicyParams(explore_entropy=2.0), plan=plan)
+        d = decide(
+            G, b, goal, costs, PolicyParams(explore_entropy=2.0), plan=plan, hold_goal=hold_goal
+        )
         tally: dict[Action, float] = {}
         for f, a in enumerate(want):
             tally[a] = tally.get(a, 0.0) + b[f]
