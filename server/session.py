@@ -40,6 +40,7 @@ from server.vision.homing import (
     ScaleResult,
     ZoomLevel,
     homing_offset,
+    homing_scale,
     homing_scale_zoomed,
     zoom_levels,
 )
@@ -601,10 +602,26 @@ class RobotSession:
     def _follow(
         self, edge: int, k: int, features: ImageFeatures, behaviour: str = "follow"
     ) -> Command:
-        """Visual homing on image ``k`` of ``edge`` (Navigate)."""
+        """Visual homing on image ``k`` of ``edge`` (Navigate).
+
+        Before the image where the taught robot set off (``TourRuntime.departure``: it turned
+        on the spot to face the way out until there) the taught turn is replayed only while
+        the view where it set off is not in sight: a frame that matches it (a consensus
+        scale fit, :func:`server.vision.homing.homing_scale`, of ``dock_min_inliers`` within
+        ``MotionParams.toward_offset``) drives on from there. Facing the way out from a little
+        further on, the view looks like the end of that turn, and replaying the turn spun the
+        robot away from the door it stood at."""
         rt = self.runtime
+        mp = self.params.motion
         e = rt.graph.edges[edge]
         k = int(np.clip(k, 0, e.n_images - 1))
+        dep = rt.departure[edge]
+        if 0 < dep < e.n_images - 1 and k <= dep:
+            out = homing_scale(features, rt.features[rt.edge_image(edge, dep)])
+            if out is not None and (
+                out.inliers >= self.params.dock_min_inliers and abs(out.offset) <= mp.toward_offset
+            ):
+                k = dep + 1
         target = rt.edge_image(edge, k)
         # a pause while teaching is not repeated (standing still would freeze the belief);
         # the motion replayed is that of the next image that moves. None left: the edge ends.

@@ -319,6 +319,29 @@ def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() 
     assert fit is not None and fit.scale == pytest.approx(1.0, abs=0.01)
 
 
+def test_a_robot_facing_the_way_out_drives_on_instead_of_replaying_the_taught_turn() -> None:
+    """An edge that starts with the guide turning on the spot (images 0-3) to face the way out,
+    then driving (4-9). A belief on the turn replays it, unless the frame already shows where
+    the taught robot set off."""
+    n = 10
+    v, w = np.full(n, 0.3), np.zeros(n)
+    v[:4], w[:4] = 0.0, 0.8
+    ids = iter(range(4000, 5000))
+    locs = tuple(Location(name, (next(ids),)) for name in "AB")
+    ab = Edge(A, B, tuple(next(ids) for _ in range(n)), np.arange(n) * 0.5, v, w)
+    graph = TourGraph(locs, (ab,))
+    feats = [extract(scene(int(i))) for i in graph.image_ids]
+    rt = TourRuntime(graph, feats, NavigationParams())
+    assert rt.departure == (4,)
+    s = RobotSession("rover", rt)
+    # facing the way out: drives on from the departure, homing on the image after it
+    c = s._follow(0, 2, extract(scene(int(ab.image_ids[4]))))
+    assert c.v > 0 and c.target_image == rt.edge_image(0, 5)
+    # facing elsewhere (the start of the turn): the taught turn is replayed
+    c = s._follow(0, 1, extract(scene(int(ab.image_ids[0]))))
+    assert c.v == 0 and c.w > 0 and c.target_image == rt.edge_image(0, 1)
+
+
 # --- docking on the place's spin images -------------------------------------------------------
 
 BLANK = np.full((240, 320, 3), 128, np.uint8)
