@@ -21,6 +21,7 @@ from server.imaging import ImageLimits
 from server.services.container import Services
 from server.session import NavigationParams
 from server.storage.repo import Repo
+from server.tuning import tuned
 
 
 def _error(
@@ -50,6 +51,8 @@ def create_app(settings: Settings, *, navigation: NavigationParams | None = None
     ``navigation`` tunes the navigation core (defaults documented in NavigationParams)."""
     if settings.admin_token is None:
         raise ValueError("settings.admin_token is required (serve generates one when unset)")
+    if settings.navigation:
+        navigation = tuned(navigation or NavigationParams(), settings.navigation)
     limits = ImageLimits(
         max_bytes=settings.max_image_bytes,
         max_pixels=settings.max_image_pixels,

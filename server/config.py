@@ -7,6 +7,7 @@ handed to :func:`server.app.create_app`; nothing is built at import time.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -42,6 +43,12 @@ class Settings(BaseSettings):
         "all robots; the others wait their turn. A step is CPU work that partly holds the GIL, "
         "so more at once mostly contend for it: at 20 robots, one at a time served 170 "
         "frames/s where up to 40 at once served 128 (docs/reliability.md).",
+    )
+    navigation: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Overrides of the navigation settings (server.session.NavigationParams, "
+        'dotted names for nested ones), JSON in the environment: {"dock_second_axis": false, '
+        '"motion.unstick_s": 6}. Unknown names and wrong types stop the server at start.',
     )
     max_image_bytes: int = Field(
         default=4 * 1024 * 1024, gt=0, description="Largest accepted image body, bytes."

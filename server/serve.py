@@ -7,6 +7,7 @@ import ctypes
 import gc
 import os
 import socket
+import sys
 from pathlib import Path
 
 from pydantic import SecretStr
@@ -95,8 +96,12 @@ def run(args: argparse.Namespace) -> int:
     from server.app import create_app
 
     limit_malloc_arenas()
-    settings = settings_from(args)
-    app = create_app(settings)
+    try:
+        settings = settings_from(args)
+        app = create_app(settings)
+    except ValueError as exc:  # a setting that does not parse or does not exist
+        print(f"teachrepeat serve: {exc}", file=sys.stderr, flush=True)
+        return 2
     sock = bind_port(settings.host, settings.port)
     port = sock.getsockname()[1]
     base = f"http://{settings.host}:{port}"

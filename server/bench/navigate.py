@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import random
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -40,12 +41,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument(
+        "--set",
+        dest="settings",
+        metavar="NAME=VALUE",
+        action="append",
+        type=_setting,
+        default=[],
+        help="run the server with this navigation setting changed (repeatable; dotted names "
+        "for nested ones, values as JSON): --set dock_second_axis=false --set "
+        "motion.unstick_s=6. For ablations: the same trials with and without a change",
+    )
+    parser.add_argument(
         "--trace",
         type=Path,
         default=None,
         help="write every step of every trial (true pose, command, top beliefs) to "
         "DIR/trial_NNN.jsonl, to see why a trial failed",
     )
+
+
+def _setting(text: str) -> tuple[str, Any]:
+    name, eq, raw = text.partition("=")
+    if not eq or not name.strip():
+        raise argparse.ArgumentTypeError(f"--set takes NAME=VALUE, not {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw  # a bare word is a string
+    return name.strip(), value
 
 
 def _trial_list(text: str) -> frozenset[int]:
@@ -102,6 +125,16 @@ def _write_trace(path: Path, rows: list[dict[str, Any]]) -> None:
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
+def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
+    """The server's environment for ``--set`` (checked here first, so a typo fails fast)."""
+    from server.session import NavigationParams
+    from server.tuning import tuned
+
+    overrides = dict(settings)
+    tuned(NavigationParams(), overrides)  # ValueError names what is wrong
+    return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)} if overrides else {}
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -111,12 +144,17 @@ def run(args: argparse.Namespace) -> int:
     from robot_client.trial import run_trial
     from server.process import scratch_server
 
+    try:
+        env = _navigation_env(args.settings)
+    except ValueError as exc:
+        print(f"teachrepeat bench navigate: {exc}", file=sys.stderr)
+        return 2
     plan = load_plan()
     rng = random.Random(args.seed)
     np_rng = np.random.default_rng(args.seed)
     rows: list[dict[str, Any]] = []
     with (
-        scratch_server("bench.sqlite") as server,
+        scratch_server("bench.sqlite", extra_env=env) as server,
         TeachRepeatClient(server.url, server.register_robot("bench")) as client,
     ):
         with SimWorld(plan, condition="same", seed=args.seed) as world:
@@ -158,6 +196,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "condition": args.condition,
         "seed": args.seed,
+        "settings": dict(args.settings),
         "trials": len(rows),
         "success_rate": len(successes) / len(rows) if rows else 0.0,
         "wrong_arrivals": sum(r["wrong_arrival"] for r in rows),

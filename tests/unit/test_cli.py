@@ -45,3 +45,44 @@ def test_serve_caps_malloc_arenas_unless_the_environment_says(
     assert not limit_malloc_arenas()
     monkeypatch.delenv("MALLOC_ARENA_MAX")
     assert limit_malloc_arenas() == (platform.libc_ver()[0] == "glibc")
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ('{"dock_second_axes": false}', "NavigationParams has no setting 'dock_second_axes'"),
+        ('{"motion.spin_w": "fast"}', "MotionParams.spin_w takes float"),
+        ("not json", 'error parsing value for field "navigation"'),
+    ],
+)
+def test_serve_refuses_navigation_settings_it_cannot_apply(
+    value: str,
+    message: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setenv("TEACHREPEAT_NAVIGATION", value)
+    monkeypatch.setenv("TEACHREPEAT_ADMIN_TOKEN", "a-token")
+    db = tmp_path / "t.sqlite"
+    assert main(["serve", "--db", str(db), "--port", "0", "--dashboard-port", "-1"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_navigation_settings_reach_the_navigation_core(tmp_path: Path) -> None:
+    from server.app import create_app
+    from server.config import Settings
+
+    for navigation, second_axis in (
+        ({"dock_second_axis": False, "motion.unstick_s": 6}, False),
+        ({}, True),
+    ):
+        services = create_app(
+            Settings(db=tmp_path / "t.sqlite", admin_token="a-token", navigation=navigation)
+        ).state.services
+        try:
+            params = services.navigation.params
+            assert params.dock_second_axis is second_axis
+            assert params.motion.unstick_s == (6.0 if navigation else 4.0)
+        finally:
+            services.close()
