@@ -981,7 +981,8 @@ def _action_text(step: StepView, graph: TourGraph) -> str:
     top = ", ".join(f"{graph.state_name(s)} {p:.2f}" for s, p in step.top_states[:3])
     loc = "yes" if step.localised else "no"
     return (
-        f"**Action: {step.action}**{where} - v {step.v:.2f} m/s, w {step.w:.2f} rad/s\n\n"
+        f"**Action: {step.action}**{where} ({step.behaviour}) - v {step.v:.2f} m/s, "
+        f"w {step.w:.2f} rad/s\n\n"
         f"Top states: {top}\n\n"
         f"Entropy **{step.entropy:.2f}** nats - localised: {loc}"
     )

@@ -62,6 +62,7 @@ class StepView:
     image_similarity: FloatArray  # (n_images,) similarity of the frame to every stored image
     action: str  # rotate_and_find_edge | navigate | explore | do_nothing
     action_edge: int | None
+    behaviour: str  # what the motion layer is doing (server.session.BEHAVIOURS)
     target_image: int | None  # canonical image the robot homes on (Navigate)
     votes: dict[str, float]  # vote mass per action name, sums to 1 (empty when no task)
     active_edge: int | None
@@ -419,6 +420,7 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         image_similarity=image_similarity,
         action=str(command.action.kind.value),
         action_edge=command.action.edge,
+        behaviour=command.behaviour,
         target_image=command.target_image,
         votes=votes,
         active_edge=None if decision is None else decision.active_edge,

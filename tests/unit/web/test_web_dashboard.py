@@ -109,6 +109,7 @@ def test_go_streams_and_stop_through_the_navigation_service(
     assert snap.task.state == "underway" and snap.step.index == 3
     assert "Task 1 to **c**: **underway**" in c.status.content
     assert "**Action:" in c.action.content and "Entropy" in c.action.content
+    assert f"({snap.step.behaviour})" in c.action.content  # what the motion layer is doing
     assert "Vote mass" in c.votes.content
     assert not np.array_equal(before, c.images.image)  # camera | best match were drawn
     assert len(c.over_time.data[0]) == 3
