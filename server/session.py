@@ -127,14 +127,6 @@ class NavigationParams:
       race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
       44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
       m off now arrive (0.06-0.48 m, replayed alone).
-    * ``search_zoomed`` (True), ``search_zoomed_similarity`` (0.3): RotateAndFindEdge from a
-      location also takes a view that matches an image where the taught robot set off through
-      a zoom of the frame (``dock_zooms``; ``dock_min_inliers`` agreeing on a scale, homing
-      offset within ``MotionParams.found_offset``), when the engine's similarity to it is at
-      least the latter but short of ``MotionParams.found_similarity``. A robot standing in the
-      room a metre off the place sees the way out larger or smaller than it was taught, and
-      turned round and round there without finding it. Zoom levels are extracted only on
-      such frames.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -179,8 +171,6 @@ class NavigationParams:
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
     dock_second_axis: bool = True
-    search_zoomed: bool = True
-    search_zoomed_similarity: float = 0.3
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
@@ -523,7 +513,7 @@ class RobotSession:
             )
             self._watch_stall(timestamp, v, dt)
             frame = DockFrame(image, features, p)
-            command = self._command(decision, frame, similarity, summary, depth, timestamp, dt)
+            command = self._command(decision, features, similarity, summary, depth, timestamp, dt)
             placing = self._place_dock(task, summary, frame, similarity, depth, dt)
             command = self._bump(placing or command, v, depth, timestamp, dt)
             self._track_approach(task, command, dt)
@@ -558,7 +548,7 @@ class RobotSession:
     def _command(
         self,
         decision: Decision,
-        frame: DockFrame,
+        features: ImageFeatures,
         similarity: Similarity,
         summary: BeliefSummary,
         depth: npt.ArrayLike | None,
@@ -577,10 +567,10 @@ class RobotSession:
         if action.kind == ActionKind.NAVIGATE and decision.active_edge is not None:
             edge = decision.active_edge
             k = decision.target_image if decision.target_image is not None else 0
-            c = self._follow(edge, k, frame.features)
+            c = self._follow(edge, k, features)
         elif action.kind == ActionKind.ROTATE_AND_FIND_EDGE and action.edge is not None:
             at_location = summary.map_state < self.runtime.graph.n_locations
-            c = self._find_edge(action.edge, frame, similarity, at_location=at_location)
+            c = self._find_edge(action.edge, features, similarity, at_location=at_location)
             if c.action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
                 c = self._unstick(c, depth, timestamp, dt)
         elif action.kind == ActionKind.EXPLORE:
@@ -700,7 +690,7 @@ class RobotSession:
     def _find_edge(
         self,
         edge: int,
-        frame: DockFrame,
+        features: ImageFeatures,
         similarity: Similarity,
         *,
         at_location: bool,
@@ -711,15 +701,10 @@ class RobotSession:
 
         From a location the sought images are those around where the taught robot began to move
         forward (not the turn on the spot before it: the spin itself finds the heading);
-        turning back on an edge, anywhere along the reverse edge. From a location the view
-        also counts when it matches one of those images through a zoom of the frame
-        (``NavigationParams.search_zoomed``): a robot standing in the room off the place sees
-        the way out larger or smaller than it was taught.
+        turning back on an edge, anywhere along the reverse edge.
         """
         rt = self.runtime
-        p = self.params
-        mp = p.motion
-        features = frame.features
+        mp = self.params.motion
         e = rt.graph.edges[edge]
         if self.leaving is not None and self.leaving[0] == edge:
             _, k, misses = self.leaving
@@ -753,20 +738,6 @@ class RobotSession:
             if homing.n_matches >= mp.toward_matches and abs(homing.offset) <= mp.toward_offset:
                 turn = rotate_command(mp, toward=float(homing.offset))
                 return Command(*turn, Action.rotate(edge), target, "search")
-        elif at_location and p.search_zoomed and view >= p.search_zoomed_similarity:
-            k, fit = self._best_view(frame, window)
-            j = lo + window.index(k)
-            if (
-                fit is not None
-                and fit.inliers >= p.dock_min_inliers
-                and rt.moving_from(edge, min(j + 1, last)) is not None
-            ):
-                if abs(fit.offset) <= mp.found_offset:
-                    self.leaving = (edge, j, 0)
-                    return self._follow(edge, j + 1, features, "leave")
-                if abs(fit.offset) <= mp.toward_offset:
-                    turn = rotate_command(mp, toward=float(fit.offset))
-                    return Command(*turn, Action.rotate(edge), k, "search")
         return Command(*rotate_command(mp), Action.rotate(edge), target, "search")
 
     def _track_approach(self, task: Task, command: Command, dt: float) -> None:
