@@ -433,6 +433,7 @@ class RobotSession:
         self.last_timestamp: float | None = None
         self.last_frame_wall: float | None = None
         self.last_command: Command | None = None
+        self.fresh = False  # a task has just started afresh: the next frame's dt is 0
         self.history: deque[StepRecord] = deque(maxlen=runtime.params.history)
         self.lock = threading.Lock()
         # RotateAndFindEdge found its edge: (edge, image index along it, frames without a match)
@@ -464,8 +465,12 @@ class RobotSession:
         ``fresh_belief`` the belief restarts from the prior and the motion state is cleared."""
         self.task = task
         if self.params.fresh_belief:
+            # nothing of the last task carries over, not even the time since its last frame
+            # (the first prediction's dt) or its last command: a task that ended driving made
+            # the bump reflex back the robot off on the next task's first frame
             self.tracker.reset()
             self.last_action = Action.do_nothing()
+            self.last_command, self.fresh = None, True
         self.leaving = None
         self.searched_rad = 0.0
         self.unstick_until = None
@@ -493,7 +498,12 @@ class RobotSession:
         started = time.perf_counter()
         rt = self.runtime
         p = self.params
-        dt = 0.0 if self.last_timestamp is None else _elapsed(timestamp, self.last_timestamp)
+        fresh, self.fresh = self.fresh, False
+        dt = (
+            0.0
+            if fresh or self.last_timestamp is None
+            else _elapsed(timestamp, self.last_timestamp)
+        )
         dt = float(np.clip(dt, 0.0, p.max_dt_s))
         features = extract(image, p.features)
         similarity, likelihood = rt.observe(features)

@@ -13,7 +13,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "vision"))
 from vision_testkit import scene, zoomed
 
-from server.belief.model import ActionKind
+from server.belief.model import Action, ActionKind
 from server.domain import Edge, Location, TourGraph
 from server.session import (
     Command,
@@ -80,6 +80,30 @@ def test_a_new_task_starts_from_the_prior() -> None:
     assert s.tracker.last_summary.map_state == C
     s.start_task(Task(id=1, goal=A, goal_name="A", started_at=0.0))
     np.testing.assert_allclose(s.tracker.belief, s.runtime.model.prior)
+
+
+def test_a_new_task_goes_as_if_nothing_had_come_before() -> None:
+    """The task before leaves no trace: not its last command (a robot whose last task ended
+    driving, answering its new task's first frame standing still, is not "pressed against
+    something") nor the time of its last frame (the first prediction's dt)."""
+
+    def second_task(s: RobotSession) -> list[tuple[np.ndarray, Command]]:
+        s.start_task(Task(id=2, goal=A, goal_name="A", started_at=0.0))
+        out = []
+        for i in range(15):
+            rec = s.step(spin_image(B, i % 4), timestamp=60.0 + 0.1 * i, v=0.0, w=0.0)
+            out.append((rec.summary.belief, rec.command))
+        return out
+
+    used = session()
+    used.start_task(Task(id=1, goal=C, goal_name="C", started_at=0.0))
+    drive(used, lambda i: spin_image(C, i % 4), 20, t0=49.0)
+    used.last_command = Command(0.3, 0.0, Action.navigate(2), None, "follow")  # ended driving
+    again = second_task(used)
+    assert "backoff" not in {c.behaviour for _, c in again}
+    for (b1, c1), (b2, c2) in zip(again, second_task(session()), strict=True):
+        np.testing.assert_array_equal(b1, b2)
+        assert c1 == c2
 
 
 def test_the_belief_survives_a_new_task_when_asked_to() -> None:
