@@ -37,8 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=_trial_list,
         default=None,
         help="run only these trials (comma-separated numbers, e.g. 2,5,14); the others are "
-        "drawn but not driven, so each one starts as in the full run (most replay as they went; "
-        "not every one: moved furniture trial 1 of seed 3 goes differently after trial 0)",
+        "drawn but not driven, so each one starts as in the full run; most then go as they "
+        "went there, not every one (docs/navigation.md)",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument(
