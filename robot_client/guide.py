@@ -8,37 +8,25 @@ truth, as a person leading the robot would use their eyes.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 from robot_client.client import TeachRepeatClient
 from robot_client.sim.floorplan import FloorPlan
-from robot_client.sim.paths import FollowParams, Step, drive_to, spin, turn_to
+from robot_client.sim.paths import (
+    GUIDE_CLEARANCE_M,
+    FollowParams,
+    Step,
+    drive_to,
+    spin,
+    turn_to,
+)
 from robot_client.sim.robot import SimulatedRobot
+from robot_client.sim.route import teaching_route
 from robot_client.sim.world import Pose
+from robot_client.tour_recording import RecordedStep, TourRecording
 from server import schemas
 from server.imaging import encode_jpeg
-
-DEFAULT_ROUTE: tuple[str, ...] = (
-    "entry",
-    "living room",
-    "hall",
-    "bedroom",
-    "hall",
-    "guest room",
-    "hall",
-    "bathroom",
-    "hall",
-    "office",
-    "hall",
-    "kitchen",
-    "hall",
-    "living room",
-    "kitchen",
-    "living room",
-    "entry",
-)
-"""A walk that teaches every place, and every pair of neighbouring places both ways."""
 
 
 @dataclass(frozen=True)
@@ -50,7 +38,7 @@ class GuideParams:
     spin_every: int = 3
     spin_w: float = 0.6
     jpeg_quality: int = 90
-    clearance_m: float = 0.3
+    clearance_m: float = GUIDE_CLEARANCE_M
     follow: FollowParams = field(default_factory=FollowParams)
 
 
@@ -80,14 +68,16 @@ class TourStep:
 def guided_tour_steps(
     robot: SimulatedRobot,
     plan: FloorPlan,
-    route: Sequence[str] = DEFAULT_ROUTE,
+    route: Sequence[str] | None = None,
     params: GuideParams = GuideParams(),
 ) -> Iterator[TourStep]:
-    """Walk ``route`` (place names of ``plan``) and say what happens at every step.
+    """Walk ``route`` (place names of ``plan``; default: :func:`teaching_route`) and say what
+    happens at every step.
 
     The robot is first put at the route's first place. Each arrival is a ``mark``; every place
     is spun at (one full turn, every ``spin_every``-th step kept) on its first visit only.
     """
+    route = teaching_route(plan) if route is None else tuple(route)
     check_route(plan, route)
     places = {p.name: p for p in plan.places}
     first = places[route[0]]
@@ -111,46 +101,61 @@ def guided_tour_steps(
         yield from arrive(name)
 
 
-def teach_route(
-    client: TeachRepeatClient,
-    robot_name: str,
-    robot: SimulatedRobot,
-    plan: FloorPlan,
-    *,
-    tour: str,
-    route: Sequence[str] = DEFAULT_ROUTE,
-    params: GuideParams = GuideParams(),
-    on_frame: ProgressHook | None = None,
-) -> schemas.TourGraphPublic:
-    """Teach ``tour`` by walking ``route`` (place names of ``plan``); returns the tour graph.
-
-    The robot is first put at the route's first place. Every place is spun at on its first
-    visit only; later visits just close the path into it.
-    """
-    check_route(plan, route)  # before anything is sent
-    steps = guided_tour_steps(robot, plan, route, params)
-    tour_id = client.tour_named(tour, create=True).id
-    client.start_teaching(robot_name, tour_id)
-
-    def jpeg() -> bytes:
+def recorded_steps(
+    robot: SimulatedRobot, steps: Iterable[TourStep], params: GuideParams = GuideParams()
+) -> Iterator[RecordedStep]:
+    """The camera's JPEG at every frame and spin step of ``steps`` (marks pass through)."""
+    for item in steps:
+        if item.kind == "mark" or item.step is None:
+            yield RecordedStep(item.kind, item.place, 0.0, 0.0, 0.0, None)
+            continue
         image = robot.read()
         if image is None:
             raise RuntimeError("the simulated camera returned no frame")
-        return encode_jpeg(image, params.jpeg_quality)
+        st = item.step
+        jpeg = encode_jpeg(image, params.jpeg_quality)
+        yield RecordedStep(item.kind, item.place, st.t, st.v, st.w, jpeg)
 
+
+def record_tour(
+    robot: SimulatedRobot,
+    plan: FloorPlan,
+    route: Sequence[str] | None = None,
+    params: GuideParams = GuideParams(),
+) -> TourRecording:
+    """Walk the route and keep everything the server would be sent (for a benchmark to teach
+    many servers the same tour without walking it again)."""
+    route = teaching_route(plan) if route is None else tuple(route)
+    steps = tuple(recorded_steps(robot, guided_tour_steps(robot, plan, route, params), params))
+    return TourRecording(plan_sha256=plan.sha256, route=route, steps=steps)
+
+
+def upload_tour(
+    client: TeachRepeatClient,
+    robot_name: str,
+    steps: Iterable[RecordedStep],
+    *,
+    tour: str,
+    on_frame: ProgressHook | None = None,
+) -> schemas.TourGraphPublic:
+    """Teach ``tour`` through the REST API from recorded steps; returns the tour graph. A failure
+    part-way aborts the teaching (the open path is discarded, the places named so far stay)."""
+    tour_id = client.tour_named(tour, create=True).id
+    client.start_teaching(robot_name, tour_id)
     try:
         for item in steps:
             if item.kind == "mark":
                 client.mark_location(robot_name, item.place)
                 continue
-            st = item.step
-            if st is None:  # only marks have no control step
+            if item.jpeg is None:  # only marks have no image
                 continue
             if item.kind == "spin":
-                client.upload_spin_image(robot_name, jpeg(), timestamp=st.t, v=st.v, w=st.w)
+                client.upload_spin_image(
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w
+                )
                 label = f"spin {item.place}"
             else:
-                client.upload_frame(robot_name, jpeg(), timestamp=st.t, v=st.v, w=st.w)
+                client.upload_frame(robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w)
                 label = f"to {item.place}"
             if on_frame:
                 on_frame(label)
@@ -159,6 +164,55 @@ def teach_route(
         client.abort_teaching(robot_name)
         raise
     return ended.tour
+
+
+def teach_route(
+    client: TeachRepeatClient,
+    robot_name: str,
+    robot: SimulatedRobot,
+    plan: FloorPlan,
+    *,
+    tour: str,
+    route: Sequence[str] | None = None,
+    params: GuideParams = GuideParams(),
+    on_frame: ProgressHook | None = None,
+) -> schemas.TourGraphPublic:
+    """Teach ``tour`` by walking ``route`` (place names of ``plan``; default: the plan's
+    teaching route) and streaming each frame as it is taken; returns the tour graph.
+
+    The robot is first put at the route's first place. Every place is spun at on its first
+    visit only; later visits just close the path into it.
+    """
+    route = teaching_route(plan) if route is None else tuple(route)
+    check_route(plan, route)  # before anything is sent
+    steps = recorded_steps(robot, guided_tour_steps(robot, plan, route, params), params)
+    return upload_tour(client, robot_name, steps, tour=tour, on_frame=on_frame)
+
+
+@dataclass(frozen=True)
+class Rehearsal:
+    """What teaching a route will take: ``uploads`` images (frames and spin images) over
+    ``seconds`` of robot time."""
+
+    uploads: int
+    seconds: float
+
+
+def rehearse(
+    plan: FloorPlan, route: Sequence[str] | None = None, params: GuideParams = GuideParams()
+) -> Rehearsal:
+    """Walk the guide through ``route`` without a camera (collisions only, no noise): the
+    total and ETA of a teaching progress bar. Exact for a robot without noise; within a few
+    percent of a noisy one. About half a second for the apartment."""
+    from robot_client.sim.robot import RobotParams
+    from robot_client.sim.world import PlanGeometry
+
+    route = teaching_route(plan) if route is None else tuple(route)
+    quiet = RobotParams(actuation_noise=0.0, odom_noise_v=0.0, odom_noise_w=0.0)
+    first = plan.place(route[0])
+    robot = SimulatedRobot(PlanGeometry(plan), Pose(first.x, first.y, first.yaw), params=quiet)
+    uploads = sum(s.kind != "mark" for s in guided_tour_steps(robot, plan, route, params))
+    return Rehearsal(uploads=uploads, seconds=robot.now())
 
 
 def walk_to(

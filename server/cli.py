@@ -27,6 +27,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("serve",), "server.serve", "run the API server (and the dashboard)"),
     (("robot", "teach"), "robot_client.teach", "replay a folder of images as a teaching tour"),
     (("demo",), "robot_client.demo", "the simulated home, taught and navigated end to end"),
+    (
+        ("sim", "check-plan"),
+        "robot_client.sim.check_plan",
+        "check a floor plan of a simulated home, print its teaching route, draw it",
+    ),
     (("bench", "retrieval"), "server.bench.retrieval", "image retrieval on real images vs OpenCV"),
     (("bench", "localize"), "server.bench.localize", "sequence localisation on real routes"),
     (
@@ -69,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
             parent = groups[group]
         sub = parent.add_parser(path[-1], help=help_text, description=help_text)
         importlib.import_module(module).add_arguments(sub)
-        sub.set_defaults(_module=module)
+        sub.set_defaults(_module=module, _parser=sub)
     return parser
 
 
@@ -81,7 +86,9 @@ def _exit_on_sigterm(signum: int, frame: object) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``teachrepeat`` console script."""
-    args = build_parser().parse_args(argv)
+    args, unknown = build_parser().parse_known_args(argv)
+    if unknown:  # the sub-command's usage, not the top level's, says what it takes
+        args._parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     # ``serve`` leaves SIGTERM to uvicorn, which shuts down gracefully and re-raises it
     in_main = threading.current_thread() is threading.main_thread()
     handle = in_main and args._module != "server.serve"

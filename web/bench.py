@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from server.bench.common import default_data_dir, stats, write_json
+from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 
 if TYPE_CHECKING:
     import uvicorn
@@ -34,8 +34,13 @@ if TYPE_CHECKING:
     from server.services.container import Services
     from web.dashboard import Dashboard
 
+
+def _ends(marks: dict[int, str]) -> tuple[str, str]:
+    """The corridor tour's last and first places (a robot sent back and forth between them)."""
+    return marks[max(marks)], marks[min(marks)]
+
+
 ADMIN_TOKEN = "bench-dashboard-admin"
-CORRIDOR_MARKS = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--headless=new",
@@ -146,7 +151,7 @@ def teach_corridor(client: TeachRepeatClient, data: Path, *, tour: str = "corrid
     from robot_client.teach import teach_folder
 
     report = teach_folder(
-        client, tour=tour, frames=data / "corridor" / "ref", marks=CORRIDOR_MARKS, progress=False
+        client, tour=tour, frames=data / "corridor" / "ref", marks=corridor_marks(), progress=False
     )
     return report.tour.id
 
@@ -170,7 +175,7 @@ class FrameStreamer:
     robot: str
     frames: list[bytes]
     fps: float = 10.0
-    goals: tuple[str, ...] = ("kitchen", "entry")
+    goals: tuple[str, ...] = field(default_factory=lambda: _ends(corridor_marks()))
     round_trips_ms: list[float] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     sent: int = 0
@@ -334,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
             token = register(live.url, "bench")
             with TeachRepeatClient(live.url, token) as client:
                 teach_corridor(client, data)
-                client.goto("bench", "kitchen")
+                client.goto("bench", _ends(corridor_marks())[0])
                 streamer = FrameStreamer(client, "bench", query_frames(data), fps=args.fps)
                 streamer.send(30)  # warm-up: runtime built, caches hot
                 result = _alternate(live, streamer, args)

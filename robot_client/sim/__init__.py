@@ -5,6 +5,7 @@
 * :mod:`.world` - MuJoCo rendering (CPU, OSMesa), depth rays and collisions: :class:`SimWorld`.
 * :mod:`.robot` - :class:`SimulatedRobot`, implementing the driver Protocols.
 * :mod:`.paths` - shortest paths on the plan and a scripted guide that drives along them.
+* :mod:`.route` - the teaching route from the plan; :mod:`.plancheck` - every problem of a plan.
 
 MuJoCo is imported only when a :class:`SimWorld` is created (after ``MUJOCO_GL=osmesa`` is set).
 """
@@ -25,10 +26,8 @@ from robot_client.sim.paths import (
     FollowParams,
     NoPathError,
     Step,
-    TourEvent,
     drive_to,
     follow,
-    guided_tour,
     path_length,
     shortest_path,
     spin,
@@ -55,11 +54,9 @@ __all__ = [
     "SimWorld",
     "SimulatedRobot",
     "Step",
-    "TourEvent",
     "Wall",
     "drive_to",
     "follow",
-    "guided_tour",
     "load_plan",
     "path_length",
     "shortest_path",

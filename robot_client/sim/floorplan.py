@@ -51,8 +51,29 @@ FLAT_KINDS = frozenset({"rug"})
 """Furniture kinds the robot drives over (no collision)."""
 
 
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a plan: where (a JSON path such as ``$.furniture[3].texture``) and
+    what to change."""
+
+    path: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message}"
+
+
 class PlanError(ValueError):
-    """The floor plan is malformed; the message says which element and what to change."""
+    """The floor plan cannot be used. ``problems`` lists every problem found, each with the
+    JSON path of the element at fault; the message lists them all."""
+
+    def __init__(self, message: str, problems: Iterable[Problem] = ()) -> None:
+        self.problems: tuple[Problem, ...] = tuple(problems)
+        if self.problems:
+            n = len(self.problems)
+            lines = "\n".join(f"  {p}" for p in self.problems)
+            message = f"{message}: {n} problem{'s' if n > 1 else ''}\n{lines}"
+        super().__init__(message)
 
 
 @dataclass(frozen=True)
@@ -206,7 +227,14 @@ class FloorPlan:
     door_height: float = 2.05
     aliases: tuple[tuple[str, str], ...] = ()
     """Pairs of place names that are meant to look alike (perceptual aliasing)."""
+    route: tuple[str, ...] = ()
+    """The teaching guide's walk (place names in order); empty: derived from the plan
+    (:func:`robot_client.sim.route.teaching_route`)."""
     notes: str = ""
+    source: str = field(default="<dict>", compare=False)
+    """Where the plan was read from (a file path), for messages and benchmark records."""
+    sha256: str = field(default="", compare=False)
+    """SHA-256 of the file's bytes (empty for a plan built in code): benchmarks record it."""
     _cache: dict[str, Any] = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     # -- queries ---------------------------------------------------------------------------
@@ -234,6 +262,21 @@ class FloorPlan:
             if r.contains(x, y):
                 return r
         return None
+
+    def rooms_of_door(self, door: Door) -> tuple[int, ...]:
+        """Indices of the rooms on whose wall ``door`` lies (two for a door that joins rooms)."""
+        t = self.wall_thickness
+        out = []
+        for i, r in enumerate(self.rooms):
+            on_x_side = (
+                abs(door.y - r.y0) <= t or abs(door.y - r.y1) <= t
+            ) and r.x0 < door.x < r.x1
+            on_y_side = (
+                abs(door.x - r.x0) <= t or abs(door.x - r.x1) <= t
+            ) and r.y0 < door.y < r.y1
+            if on_x_side or on_y_side:
+                out.append(i)
+        return tuple(out)
 
     def furniture_for(self, condition: str = "same") -> tuple[Furniture, ...]:
         """Furniture as it stands under ``condition`` (``moved`` displaces some pieces)."""
@@ -321,152 +364,204 @@ def _subtract(
     return [(p0, p1) for p0, p1 in pieces if p1 - p0 > 0.01]
 
 
+# -- reading a plan ------------------------------------------------------------------------------
+
+
+_LISTS: dict[str, type] = {
+    "rooms": Room,
+    "doors": Door,
+    "furniture": Furniture,
+    "pictures": Picture,
+    "places": Place,
+    "extra_walls": Wall,
+}
+_NUMBERS = ("wall_height", "wall_thickness", "door_height")
+_TEXTS = ("name", "notes")
+_TOP_LEVEL = (*_TEXTS, *_NUMBERS, *_LISTS, "aliases", "route")
+
+
+def load_plan(path: Path | str | None = None, *, check: bool = True) -> FloorPlan:
+    """Read a floor plan JSON file and check it (:func:`robot_client.sim.plancheck.check_plan`).
+
+    Args:
+        path: the JSON file; ``None`` loads the packaged ``apartment.json``.
+        check: run every check (rooms, doors, furniture, reachability, textures, route);
+            ``False`` only parses (for tools that show what is wrong with a plan).
+
+    Raises:
+        PlanError: the file is missing or is not valid JSON, or the plan has problems; the
+            error lists every one with its JSON path.
+    """
+    path = DEFAULT_PLAN if path is None else Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise PlanError(f"floor plan {path} not found") from None
+    except OSError as exc:
+        raise PlanError(f"floor plan {path} cannot be read: {exc}") from None
+    try:
+        data = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise PlanError(f"floor plan {path} is not valid JSON: {exc}") from None
+    import hashlib
+
+    plan = plan_from_dict(
+        data, source=str(path), sha256=hashlib.sha256(raw).hexdigest(), check=check
+    )
+    return plan
+
+
+def plan_from_dict(
+    data: Any, *, source: str = "<dict>", sha256: str = "", check: bool = True
+) -> FloorPlan:
+    """Build a :class:`FloorPlan` from its JSON form (see ``apartment.json``) and check it.
+
+    Raises:
+        PlanError: listing every problem found, each with its JSON path.
+    """
+    plan, problems = parse_plan(data, source=source, sha256=sha256)
+    if plan is not None and check:
+        from robot_client.sim.plancheck import check_plan  # geometry lives there
+
+        problems = [*problems, *check_plan(plan)]
+    if plan is None or problems:
+        raise PlanError(f"floor plan {source}", problems)
+    return plan
+
+
+def parse_plan(
+    data: Any, *, source: str = "<dict>", sha256: str = ""
+) -> tuple[FloorPlan | None, list[Problem]]:
+    """The plan's structure: every element an object with the right fields and types.
+
+    Returns:
+        the plan (``None`` when an element could not be built) and the problems found.
+    """
+    problems: list[Problem] = []
+    if not isinstance(data, Mapping):
+        return None, [Problem("$", "a floor plan is a JSON object with 'rooms', 'places', ...")]
+    for key in data:
+        if key not in _TOP_LEVEL:
+            problems.append(
+                Problem(f"$.{key}", f"unknown key; known keys: {', '.join(_TOP_LEVEL)}")
+            )
+    built: dict[str, list[Any]] = {}
+    for key, cls in _LISTS.items():
+        value = data.get(key, [])
+        if not isinstance(value, list):
+            problems.append(Problem(f"$.{key}", "must be a list"))
+            value = []
+        built[key] = [_build(cls, item, f"$.{key}[{i}]", problems) for i, item in enumerate(value)]
+    scalars: dict[str, Any] = {}
+    for key in _NUMBERS:
+        if key in data:
+            scalars[key] = _number(data[key], f"$.{key}", problems)
+    for key in _TEXTS:
+        if key in data:
+            scalars[key] = _text(data[key], f"$.{key}", problems)
+    aliases = _name_lists(data.get("aliases", []), "$.aliases", problems, pairs=True)
+    route = _name_lists([data.get("route", [])], "$.route", problems, pairs=False)
+    complete = not problems and all(None not in items for items in built.values())
+    if not complete:
+        return None, problems
+    plan = FloorPlan(
+        name=scalars.get("name", "home"),
+        rooms=tuple(built["rooms"]),
+        doors=tuple(built["doors"]),
+        furniture=tuple(built["furniture"]),
+        pictures=tuple(built["pictures"]),
+        places=tuple(built["places"]),
+        extra_walls=tuple(built["extra_walls"]),
+        wall_height=scalars.get("wall_height", 2.5),
+        wall_thickness=scalars.get("wall_thickness", 0.06),
+        door_height=scalars.get("door_height", 2.05),
+        aliases=tuple((a[0], a[1]) for a in aliases),
+        route=tuple(route[0]) if route else (),
+        notes=scalars.get("notes", ""),
+        source=source,
+        sha256=sha256,
+    )
+    return plan, problems
+
+
+def _number(value: Any, path: str, problems: list[Problem]) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        problems.append(Problem(path, f"must be a number, not {json.dumps(value)}"))
+        return None
+    return float(value)
+
+
+def _text(value: Any, path: str, problems: list[Problem]) -> str | None:
+    if not isinstance(value, str):
+        problems.append(Problem(path, f"must be a string, not {json.dumps(value)}"))
+        return None
+    return value
+
+
+def _name_lists(value: Any, path: str, problems: list[Problem], *, pairs: bool) -> list[list[str]]:
+    """``aliases`` (a list of two-name lists) or ``[route]`` (one list of names)."""
+    if not isinstance(value, list):
+        problems.append(Problem(path, "must be a list"))
+        return []
+    out = []
+    for i, item in enumerate(value):
+        where = f"{path}[{i}]" if pairs else path
+        if not isinstance(item, list) or not all(isinstance(n, str) for n in item):
+            problems.append(Problem(where, "must be a list of place names"))
+            continue
+        if pairs and len(item) != 2:
+            problems.append(Problem(where, f"an alias names two places, not {len(item)}"))
+            continue
+        out.append(list(item))
+    return out
+
+
+def _build(cls: type, item: Any, path: str, problems: list[Problem]) -> Any:
+    """One element of a plan list, its fields checked by the dataclass's annotations."""
+    import dataclasses
+
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    required = [
+        n
+        for n, f in fields.items()
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    if not isinstance(item, Mapping):
+        problems.append(Problem(path, f"must be an object with {', '.join(required)}"))
+        return None
+    before = len(problems)
+    missing = [n for n in required if n not in item]
+    if missing:
+        problems.append(Problem(path, f"missing {', '.join(repr(n) for n in missing)}"))
+    kwargs: dict[str, Any] = {}
+    for key, value in item.items():
+        where = f"{path}.{key}"
+        f = fields.get(key)
+        if f is None:
+            problems.append(
+                Problem(
+                    where, f"unknown field; {cls.__name__.lower()} fields are {', '.join(fields)}"
+                )
+            )
+            continue
+        kind = str(f.type)
+        if kind == "float":
+            kwargs[key] = _number(value, where, problems)
+        elif kind == "str":
+            kwargs[key] = _text(value, where, problems)
+        elif value is None:
+            kwargs[key] = None  # ``moved: null``: stays put
+        elif isinstance(value, list) and len(value) == 3:
+            triple = [_number(v, f"{where}[{k}]", problems) for k, v in enumerate(value)]
+            kwargs[key] = tuple(triple)
+        else:
+            problems.append(Problem(where, "must be [dx, dy, dyaw] (metres, metres, radians)"))
+    if len(problems) > before:
+        return None
+    return cls(**kwargs)
+
+
 def check_condition(condition: str) -> None:
     """Raise :class:`PlanError` unless ``condition`` is one of :data:`CONDITIONS`."""
     if condition not in CONDITIONS:
         raise PlanError(f"unknown condition {condition!r}; use one of {', '.join(CONDITIONS)}")
-
-
-# -- loading and validation ----------------------------------------------------------------------
-
-
-def load_plan(path: Path | str | None = None) -> FloorPlan:
-    """Read and validate a floor plan JSON file.
-
-    Args:
-        path: the JSON file; ``None`` loads the packaged ``apartment.json``.
-
-    Raises:
-        PlanError: the file is missing, is not valid JSON, or describes an impossible home;
-            the message names the element at fault.
-    """
-    path = DEFAULT_PLAN if path is None else Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise PlanError(f"floor plan {path} not found") from None
-    except json.JSONDecodeError as exc:
-        raise PlanError(f"floor plan {path} is not valid JSON: {exc}") from None
-    return plan_from_dict(data, source=str(path))
-
-
-def plan_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> FloorPlan:
-    """Build and validate a :class:`FloorPlan` from its JSON form (see ``apartment.json``)."""
-
-    def items(key: str) -> list[Mapping[str, Any]]:
-        value = data.get(key, [])
-        if not isinstance(value, list):
-            raise PlanError(f"{source}: {key!r} must be a list")
-        return value
-
-    def build(cls: type, item: Mapping[str, Any], where: str) -> Any:
-        try:
-            kwargs = dict(item)
-            if cls is Furniture and kwargs.get("moved") is not None:
-                kwargs["moved"] = tuple(float(v) for v in kwargs["moved"])
-            return cls(**kwargs)
-        except TypeError as exc:
-            raise PlanError(f"{source}: {where}: {exc}") from None
-
-    try:
-        plan = FloorPlan(
-            name=str(data.get("name", "home")),
-            rooms=tuple(build(Room, r, f"rooms[{i}]") for i, r in enumerate(items("rooms"))),
-            doors=tuple(build(Door, d, f"doors[{i}]") for i, d in enumerate(items("doors"))),
-            furniture=tuple(
-                build(Furniture, f, f"furniture[{i}]") for i, f in enumerate(items("furniture"))
-            ),
-            pictures=tuple(
-                build(Picture, p, f"pictures[{i}]") for i, p in enumerate(items("pictures"))
-            ),
-            places=tuple(build(Place, p, f"places[{i}]") for i, p in enumerate(items("places"))),
-            extra_walls=tuple(
-                build(Wall, w, f"extra_walls[{i}]") for i, w in enumerate(items("extra_walls"))
-            ),
-            wall_height=float(data.get("wall_height", 2.5)),
-            wall_thickness=float(data.get("wall_thickness", 0.06)),
-            door_height=float(data.get("door_height", 2.05)),
-            aliases=tuple(tuple(a) for a in data.get("aliases", [])),
-            notes=str(data.get("notes", "")),
-        )
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, PlanError):
-            raise
-        raise PlanError(f"{source}: {exc}") from None
-    validate(plan, source=source)
-    return plan
-
-
-def validate(plan: FloorPlan, *, source: str = "plan", robot_radius: float = 0.2) -> None:
-    """Check a plan for the mistakes a hand-edited JSON file tends to have.
-
-    Raises:
-        PlanError: with the offending element and what to change.
-    """
-    if not plan.rooms:
-        raise PlanError(f"{source}: no rooms")
-    if plan.door_height >= plan.wall_height:
-        raise PlanError(f"{source}: door_height must be below wall_height")
-    _unique(source, "room", [r.name for r in plan.rooms])
-    _unique(source, "place", [p.name for p in plan.places])
-    _unique(source, "furniture", [f.name for f in plan.furniture])
-    for r in plan.rooms:
-        if not (r.x1 - r.x0 > 0.5 and r.y1 - r.y0 > 0.5):
-            raise PlanError(
-                f"{source}: room {r.name!r} is degenerate; need x1 > x0 and y1 > y0 "
-                "by at least 0.5 m"
-            )
-    for i, a in enumerate(plan.rooms):
-        for b in plan.rooms[i + 1 :]:
-            overlap_x = min(a.x1, b.x1) - max(a.x0, b.x0)
-            if overlap_x > 1e-6 and min(a.y1, b.y1) - max(a.y0, b.y0) > 1e-6:
-                raise PlanError(f"{source}: rooms {a.name!r} and {b.name!r} overlap")
-    for d in plan.doors:
-        on_side = [r.name for r in plan.rooms if _on_boundary(r, d, plan.wall_thickness)]
-        if not on_side:
-            raise PlanError(
-                f"{source}: door at ({d.x}, {d.y}) is not on any room's wall; "
-                "put it on a shared side of two rooms"
-            )
-        if d.width < 2 * robot_radius + 0.1:
-            raise PlanError(
-                f"{source}: door at ({d.x}, {d.y}) is {d.width} m wide, too narrow for "
-                f"a robot of radius {robot_radius} m"
-            )
-    for f in plan.furniture:
-        if f.kind not in SOLID_KINDS | FLAT_KINDS:
-            raise PlanError(
-                f"{source}: furniture {f.name!r} has unknown kind {f.kind!r}; use one "
-                f"of {', '.join(sorted(SOLID_KINDS | FLAT_KINDS))}"
-            )
-        if min(f.sx, f.sy, f.h) <= 0:
-            raise PlanError(f"{source}: furniture {f.name!r} needs positive sx, sy and h")
-        for g in (f, f.displaced()):
-            if any(plan.room_at(cx, cy) is None for cx, cy in g.corners()):
-                raise PlanError(
-                    f"{source}: furniture {f.name!r} sticks out of the home"
-                    + (" when moved" if g is not f else "")
-                )
-    for p in plan.places:
-        if plan.room_at(p.x, p.y) is None:
-            raise PlanError(f"{source}: place {p.name!r} at ({p.x}, {p.y}) is outside every room")
-    names = {p.name for p in plan.places}
-    for alias in plan.aliases:
-        if len(alias) != 2 or not set(alias) <= names:
-            raise PlanError(f"{source}: alias {alias!r} must name two places")
-    if len(plan.places) < 2:
-        raise PlanError(f"{source}: a home needs at least two named places")
-
-
-def _unique(source: str, what: str, names: list[str]) -> None:
-    seen: set[str] = set()
-    for n in names:
-        if n in seen:
-            raise PlanError(f"{source}: two {what}s are called {n!r}; names must be unique")
-        seen.add(n)
-
-
-def _on_boundary(r: Room, d: Door, t: float) -> bool:
-    on_x_side = (abs(d.y - r.y0) <= t or abs(d.y - r.y1) <= t) and r.x0 < d.x < r.x1
-    on_y_side = (abs(d.x - r.x0) <= t or abs(d.x - r.x1) <= t) and r.y0 < d.y < r.y1
-    return on_x_side or on_y_side

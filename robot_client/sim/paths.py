@@ -3,7 +3,7 @@
 * :func:`shortest_path` - A* on an occupancy grid of the plan inflated by a clearance, with a soft
   cost for hugging walls (paths go through the middle of doorways), then shortened by line of sight.
   Deterministic. Used by the teaching guide and by benchmarks ("taught optimum" path lengths).
-* :func:`follow`, :func:`spin`, :func:`turn_to`, :func:`drive_to`, :func:`guided_tour` -
+* :func:`follow`, :func:`spin`, :func:`turn_to`, :func:`drive_to` -
   generators that drive a :class:`SimulatedRobot` through ``command()`` / ``sleep()`` and yield
   after every step, so a caller can grab frames, send them to the server or draw them. They
   steer by the ground-truth pose: they play the person walking the robot around, not the
@@ -17,16 +17,19 @@ import itertools
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
-from robot_client.sim.floorplan import FloorPlan, Place
+from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.robot import SimulatedRobot
 from robot_client.sim.world import PlanGeometry, Pose, SimWorld
 
 Point = tuple[float, float]
+
+
+GUIDE_CLEARANCE_M = 0.3
+"""How far from walls and furniture the teaching guide walks the robot, metres."""
 
 
 class NoPathError(ValueError):
@@ -405,56 +408,6 @@ def drive_to(
     """Plan a shortest path from the robot's true position to ``goal`` and follow it."""
     path = shortest_path(robot.world, (robot.pose.x, robot.pose.y), goal, clearance=clearance)
     yield from follow(robot, path, params=params)
-
-
-@dataclass(frozen=True)
-class TourEvent:
-    """One step of a guided tour.
-
-    Attributes:
-        phase: ``"drive"`` (on the way to ``place``), ``"arrived"`` (standing at ``place``, facing
-            its yaw: the moment to say its name; yielded once per place) or ``"spin"`` (turning on
-            the spot at ``place`` to photograph it all round).
-        place: the place driven to, named or spun at.
-        step: the control step (pose, command, time).
-    """
-
-    phase: Literal["drive", "arrived", "spin"]
-    place: str
-    step: Step
-
-
-def guided_tour(
-    robot: SimulatedRobot,
-    places: Sequence[Place],
-    *,
-    clearance: float = 0.3,
-    params: FollowParams = FollowParams(),
-    spin_turns: float = 1.0,
-    spin_w: float = 0.6,
-) -> Iterator[TourEvent]:
-    """Walk the robot through ``places`` in order, as a person teaching it would.
-
-    For every place: drive there along a shortest path, turn to the place's yaw, yield an
-    ``arrived`` event, then spin ``spin_turns`` times. The robot may start anywhere free.
-
-    Raises:
-        NoPathError: a place cannot be reached.
-        RuntimeError: the robot got stuck on the way (the follower timed out).
-    """
-    for place in places:
-        for step in drive_to(robot, (place.x, place.y), clearance=clearance, params=params):
-            if step.failed:
-                raise RuntimeError(
-                    f"guided tour: the robot got stuck at ({step.pose.x:.2f}, {step.pose.y:.2f}) "
-                    f"on its way to {place.name!r}"
-                )
-            yield TourEvent("drive", place.name, step)
-        for step in turn_to(robot, place.yaw, dt=params.dt):
-            yield TourEvent("drive", place.name, step)
-        yield TourEvent("arrived", place.name, Step(robot.now(), robot.pose, 0.0, 0.0, done=True))
-        for step in spin(robot, turns=spin_turns, w=spin_w, dt=params.dt):
-            yield TourEvent("spin", place.name, step)
 
 
 def _wrap(angle: float) -> float:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from robot_client.sim.world import Pose, SimWorld
+from robot_client.sim.world import PlanGeometry, Pose, SimWorld
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,9 @@ class SimulatedRobot:
     """A robot in a simulated home (Camera, Motors, DepthSensor and Clock in one object).
 
     Args:
-        world: the home it lives in (not owned: :meth:`close` leaves it open).
+        world: the home it lives in (not owned: :meth:`close` leaves it open). A
+            :class:`PlanGeometry` gives a robot without camera or depth sensor (collisions
+            only), for walking a route quickly.
         pose: starting ground-truth pose; must be collision-free.
         params: base and sensor parameters.
         seed: seeds every noise source; same seed + same calls -> same poses and frames.
@@ -61,7 +63,12 @@ class SimulatedRobot:
     """
 
     def __init__(
-        self, world: SimWorld, pose: Pose, *, params: RobotParams = RobotParams(), seed: int = 0
+        self,
+        world: SimWorld | PlanGeometry,
+        pose: Pose,
+        *,
+        params: RobotParams = RobotParams(),
+        seed: int = 0,
     ) -> None:
         self.world = world
         self.params = params
@@ -87,13 +94,18 @@ class SimulatedRobot:
         """The camera frame at the current pose: ``(H, W, 3)`` uint8 BGR; ``None`` after close."""
         if self._closed:
             return None
-        frame = self.world.render(self.pose)
+        frame = self._world().render(self.pose)
         std = self.params.pixel_noise_std
         if std > 0:
             noise = self._rng.standard_normal(size=frame.shape, dtype=np.float32)
             noisy = frame.astype(np.float32) + std * noise
             frame = np.clip(noisy, 0, 255).astype(np.uint8)
         return frame
+
+    def _world(self) -> SimWorld:
+        if not isinstance(self.world, SimWorld):
+            raise RuntimeError("this robot has no camera or depth sensor: give it a SimWorld")
+        return self.world
 
     def reseed(self, seed: int) -> None:
         """Restart every noise source from ``seed`` (the pose, clock and odometer carry on):
@@ -136,7 +148,7 @@ class SimulatedRobot:
 
     def profile(self) -> npt.NDArray[np.float32]:
         """``(n_rays,)`` float32 ranges in metres, leftmost first; ``inf`` beyond range."""
-        ranges = self.world.depth_profile(self.pose)
+        ranges = self._world().depth_profile(self.pose)
         std = self.params.depth_noise_std_m
         if std > 0:
             finite = np.isfinite(ranges)

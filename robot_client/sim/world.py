@@ -19,6 +19,7 @@ import contextlib
 import math
 import os
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -325,18 +326,40 @@ class PlanGeometry:
         x = np.asarray(xs, dtype=np.float64)
         y = np.asarray(ys, dtype=np.float64)
         flat_x, flat_y = x.reshape(-1), y.reshape(-1)
-        out = np.empty(flat_x.shape, dtype=np.float64)
-        r = self._rects
+        out = np.empty(flat_x.size, dtype=np.float64)
+        every = range(len(self.obstacles))
         step = 4096
         for i in range(0, flat_x.size, step):
-            dx = flat_x[i : i + step, None] - r[None, :, 0]
-            dy = flat_y[i : i + step, None] - r[None, :, 1]
-            lx = r[None, :, 4] * dx + r[None, :, 5] * dy
-            ly = -r[None, :, 5] * dx + r[None, :, 4] * dy
-            ox = np.maximum(np.abs(lx) - r[None, :, 2], 0.0)
-            oy = np.maximum(np.abs(ly) - r[None, :, 3], 0.0)
-            out[i : i + step] = np.sqrt(ox * ox + oy * oy).min(axis=1)
+            part = self.distance_map(flat_x[i : i + step], flat_y[i : i + step], every)
+            out[i : i + step] = part.min(axis=0)
         return out.reshape(x.shape)
+
+    def distance_map(
+        self, xs: npt.ArrayLike, ys: npt.ArrayLike, obstacles: Sequence[int]
+    ) -> npt.NDArray[np.float64]:
+        """Distance from many points to each of the chosen obstacles.
+
+        Args:
+            xs, ys: arrays of the same shape, metres.
+            obstacles: indices into :attr:`obstacles`.
+        Returns:
+            ``(len(obstacles), *shape)`` float64 metres (0 inside an obstacle).
+        """
+        x = np.asarray(xs, dtype=np.float64)
+        y = np.asarray(ys, dtype=np.float64)
+        flat_x, flat_y = x.reshape(-1), y.reshape(-1)
+        r = self._rects[np.asarray(list(obstacles), dtype=np.int64)]
+        out = np.empty((len(r), flat_x.size), dtype=np.float64)
+        step = max(1, 2**19 // max(1, len(r)))
+        for i in range(0, flat_x.size, step):
+            dx = flat_x[None, i : i + step] - r[:, 0, None]
+            dy = flat_y[None, i : i + step] - r[:, 1, None]
+            lx = r[:, 4, None] * dx + r[:, 5, None] * dy
+            ly = -r[:, 5, None] * dx + r[:, 4, None] * dy
+            ox = np.maximum(np.abs(lx) - r[:, 2, None], 0.0)
+            oy = np.maximum(np.abs(ly) - r[:, 3, None], 0.0)
+            out[:, i : i + step] = np.sqrt(ox * ox + oy * oy)
+        return out.reshape((len(r), *x.shape))
 
 
 def _obstacles(walls: tuple[Wall, ...], furniture: tuple[Furniture, ...]) -> tuple[Obstacle, ...]:
@@ -606,12 +629,15 @@ def draw_map(
     px_per_m: int = 60,
     path: list[tuple[float, float]] | None = None,
     poses: list[Pose] | None = None,
+    legs: Sequence[Sequence[tuple[float, float]]] = (),
 ) -> BGRImage:
-    """A top-down map of the home: rooms, walls, furniture, named places (BGR, y up).
+    """A top-down map of the home: rooms, walls, doorways, furniture, named places (BGR, y up).
 
     Args:
         path: optional waypoints (metres) drawn as a line.
         poses: optional robot poses drawn as arrows.
+        legs: optional polylines (metres), e.g. the legs of a teaching route, drawn thin with
+            an arrow head at their end.
     """
     plan = world.plan
     x0, y0, x1, y1 = plan.bounds
@@ -653,6 +679,36 @@ def draw_map(
                 [px(o.x + c * a - s * b, o.y + s * a + c * b) for a, b in corners], np.int32
             )
             cv2.fillPoly(img, [pts], (40, 40, 40))
+    for d in plan.doors:
+        along_x = any(
+            abs(d.y - r.y0) <= plan.wall_thickness or abs(d.y - r.y1) <= plan.wall_thickness
+            for r in (plan.rooms[i] for i in plan.rooms_of_door(d))
+        )
+        half = d.width / 2
+        a, b = (
+            ((d.x - half, d.y), (d.x + half, d.y))
+            if along_x
+            else ((d.x, d.y - half), (d.x, d.y + half))
+        )
+        cv2.line(img, px(*a), px(*b), (60, 170, 60), 3, cv2.LINE_AA)
+    for leg in legs:
+        pts = np.array([px(x, y) for x, y in leg], np.int32)
+        cv2.polylines(img, [pts], False, (200, 90, 20), 1, cv2.LINE_AA)
+        if len(pts) >= 2:
+            tip, back = pts[-1], pts[-2]
+            heading = (tip - back).astype(np.float64)
+            norm = float(np.hypot(heading[0], heading[1]))
+            if norm > 0:
+                tail = tip - (heading / norm * min(norm, 18.0)).astype(np.int32)
+                cv2.arrowedLine(
+                    img,
+                    (int(tail[0]), int(tail[1])),
+                    (int(tip[0]), int(tip[1])),
+                    (200, 90, 20),
+                    1,
+                    cv2.LINE_AA,
+                    tipLength=0.5,
+                )
     for pic in plan.pictures:
         nx, ny = math.cos(pic.yaw), math.sin(pic.yaw)
         a = px(pic.x - ny * pic.width / 2, pic.y + nx * pic.width / 2)

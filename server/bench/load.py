@@ -28,10 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from server.bench.common import default_data_dir, stats, write_json
+from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 
-MARKS = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
-"""The places of the corridor tour: frame index -> name (as in ``bench upload``)."""
 PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024 if hasattr(os, "sysconf") else 4.0
 
 
@@ -51,7 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sweep", default=None, help="comma-separated robot counts, e.g. 1,5,10,20"
     )
     parser.add_argument("--p99-ms", type=float, default=100.0, help="latency target (default 100)")
-    parser.add_argument("--goal", default="kitchen", help="place every robot is sent to")
+    parser.add_argument(
+        "--goal",
+        default=None,
+        help="place every robot is sent to (default: the corridor tour's last place)",
+    )
     parser.add_argument(
         "--lockstep",
         action="store_true",
@@ -218,7 +220,9 @@ def one_run(
         with TeachRepeatClient(server.url, ADMIN) as admin:
             teacher = admin.register_robot("teacher").token
             with TeachRepeatClient(server.url, teacher) as client:
-                teach_folder(client, tour="corridor", frames=ref, marks=MARKS, progress=False)
+                teach_folder(
+                    client, tour="corridor", frames=ref, marks=corridor_marks(), progress=False
+                )
             tokens = {f"r{i:03d}": admin.register_robot(f"r{i:03d}").token for i in range(robots)}
             for name in tokens:
                 admin.goto(name, goal)
@@ -322,7 +326,7 @@ def run(args: argparse.Namespace) -> int:
             seconds=args.seconds,
             warmup_s=args.warmup,
             rate_hz=args.rate,
-            goal=args.goal,
+            goal=args.goal or corridor_marks()[max(corridor_marks())],
             rss_every_s=args.rss_every,
             server_env=server_env,
             lockstep=args.lockstep,

@@ -18,23 +18,33 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from server.bench.common import write_json
 
+if TYPE_CHECKING:
+    from robot_client.sim.floorplan import FloorPlan
+
 CONDITIONS = ("same", "lighting", "moved")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--plan",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="floor plan JSON file of the home (default: the packaged apartment)",
+    )
     parser.add_argument("--queries", type=int, default=300, help="random poses (default 300)")
     parser.add_argument("--seed", type=int, default=7, help="random seed of the poses")
     parser.add_argument(
         "--route",
         default=None,
-        help="comma-separated places the guide walks (default: the full teaching route)",
+        help="comma-separated places the guide walks (default: the plan's teaching route)",
     )
     parser.add_argument("--radius", type=float, default=0.5, help="metres (default 0.5)")
     parser.add_argument("--angle", type=float, default=30.0, help="degrees (default 30)")
@@ -61,13 +71,12 @@ def _jpeg(image: npt.NDArray[np.uint8], quality: int) -> npt.NDArray[np.uint8]:
     return np.asarray(cv2.imdecode(data, cv2.IMREAD_COLOR), np.uint8)
 
 
-def teach(route: tuple[str, ...]) -> tuple[list[Shot], list[str]]:
+def teach(plan: FloorPlan, route: tuple[str, ...]) -> tuple[list[Shot], list[str]]:
     """The tour's images with their poses and state keys (``place`` or ``from->to``)."""
     from robot_client.guide import GuideParams, guided_tour_steps
-    from robot_client.sim import SimulatedRobot, SimWorld, load_plan
+    from robot_client.sim import SimulatedRobot, SimWorld
     from robot_client.sim.world import Pose
 
-    plan = load_plan()
     params = GuideParams()
     shots: list[Shot] = []
     keys: list[str] = []
@@ -88,11 +97,10 @@ def teach(route: tuple[str, ...]) -> tuple[list[Shot], list[str]]:
     return shots, keys
 
 
-def queries(n: int, seed: int) -> dict[str, list[Shot]]:
+def queries(plan: FloorPlan, n: int, seed: int) -> dict[str, list[Shot]]:
     """The same ``n`` random free poses rendered in every condition (camera noise, JPEG)."""
-    from robot_client.sim import SimWorld, load_plan
+    from robot_client.sim import SimWorld
 
-    plan = load_plan()
     rng = np.random.default_rng(seed)
     with SimWorld(plan, condition="same", seed=seed) as world:
         poses = [world.free_random_pose(rng) for _ in range(n)]
@@ -157,16 +165,24 @@ def evaluate(
 
 
 def run(args: argparse.Namespace) -> int:
-    from robot_client.guide import DEFAULT_ROUTE
+    from robot_client.guide import check_route
+    from robot_client.sim.check_plan import load_plans_or_exit
+    from robot_client.sim.route import teaching_route
 
+    plan = load_plans_or_exit([args.plan], "teachrepeat bench sim-retrieval")[0]
     route = (
         tuple(s.strip() for s in args.route.split(",") if s.strip())
         if args.route
-        else DEFAULT_ROUTE
+        else teaching_route(plan)
     )
+    try:
+        check_route(plan, route)
+    except ValueError as exc:
+        print(f"teachrepeat bench sim-retrieval: --route {exc}")
+        return 2
     t0 = time.perf_counter()
-    tour, keys = teach(route)
-    qs = queries(args.queries, args.seed)
+    tour, keys = teach(plan, route)
+    qs = queries(plan, args.queries, args.seed)
     print(f"tour: {len(tour)} images, {len(set(keys))} states; {args.queries} poses per condition")
     configs: dict[str, Any] = {}
     for constancy in (True, False):
@@ -190,6 +206,9 @@ def run(args: argparse.Namespace) -> int:
     write_json(
         args.json,
         {
+            "plan": Path(plan.source).name,
+            "plan_name": plan.name,
+            "plan_sha256": plan.sha256,
             "route": list(route),
             "tour_images": len(tour),
             "poses": args.queries,

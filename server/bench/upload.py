@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from server.bench.common import default_data_dir, stats, write_json
+from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     if not frames.is_dir():
         print(f"no frames at {frames}; pass --data DIR")
         return 2
-    marks = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
+    marks = corridor_marks()
     rates: list[float] = []
     for k in range(args.runs):
         with (

@@ -86,3 +86,14 @@ def test_navigation_settings_reach_the_navigation_core(tmp_path: Path) -> None:
             assert params.motion.unstick_s == (6.0 if navigation else 4.0)
         finally:
             services.close()
+
+
+def test_an_unknown_option_prints_the_sub_command_s_usage(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "navigate", "--trials", "3", "--bogus"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: teachrepeat bench navigate")
+    assert "unrecognized arguments: --bogus" in err

@@ -83,3 +83,22 @@ def test_no_machine_paths_in_code() -> None:
         for path in python_files(package):
             for bad in ("'/work/", '"/work/', "'/tmp/", '"/tmp/', "'/root/", '"/root/'):
                 assert bad not in path.read_text(), f"{path.relative_to(ROOT)} holds {bad}"
+
+
+def test_no_place_name_is_written_into_the_code() -> None:
+    """Homes are data: the places of the shipped plans (and of the corridor tour the benchmarks
+    teach) are named in their data files only, never as a string in the code."""
+    import json
+
+    from server.bench.common import corridor_marks
+
+    names = set(corridor_marks().values())
+    for plan in sorted((ROOT / "robot_client" / "sim").glob("*.json")):
+        names |= {p["name"] for p in json.loads(plan.read_text())["places"]}
+    found = []
+    for spec in ("server", "robot_client", "web"):
+        for path in python_files(spec):
+            for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+                if isinstance(node, ast.Constant) and node.value in names:
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value!r}")
+    assert not found, "place names in code (put them in a plan or marks file):\n" + "\n".join(found)

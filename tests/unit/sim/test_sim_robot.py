@@ -10,7 +10,7 @@ import pytest
 
 from robot_client.drivers.base import Camera, Clock, DepthSensor, Motors
 from robot_client.sim.floorplan import FloorPlan, load_plan
-from robot_client.sim.paths import follow, guided_tour, shortest_path, spin, turn_to
+from robot_client.sim.paths import follow, shortest_path, spin, turn_to
 from robot_client.sim.robot import RobotParams, SimulatedRobot
 from robot_client.sim.world import Pose, SimWorld
 
@@ -161,18 +161,3 @@ def test_scripted_guide_follows_a_path_spins_and_turns(world: SimWorld, plan: Fl
     assert spun[-1].done and sum(abs(s.w) * 0.1 for s in spun) == pytest.approx(2 * math.pi, 0.05)
     list(turn_to(robot, b.yaw))
     assert abs(math.remainder(robot.pose.theta - b.yaw, 2 * math.pi)) < 0.05
-
-
-def test_guided_tour_visits_every_place_in_order(plan: FloorPlan) -> None:
-    with SimWorld(plan, condition="moved") as moved:
-        robot = SimulatedRobot(moved, _start(plan, "kitchen"), seed=4)
-        events = list(guided_tour(robot, plan.places))
-    arrived = [e for e in events if e.phase == "arrived"]
-    assert [e.place for e in arrived] == [p.name for p in plan.places]
-    for e in arrived:
-        p = plan.place(e.place)
-        assert math.dist((e.step.pose.x, e.step.pose.y), (p.x, p.y)) < 0.1
-        assert abs(math.remainder(e.step.pose.theta - p.yaw, 2 * math.pi)) < 0.05
-    spins = [e for e in events if e.phase == "spin"]
-    assert len(spins) > 8 * 50
-    assert robot.blocked_time == 0.0

@@ -1,0 +1,119 @@
+"""A guided tour as the server receives it, kept in one file so it can be taught again.
+
+Walking and rendering a tour is the slow part of teaching a simulated home; a benchmark that
+starts several servers (one per worker) records the tour once and uploads the recording to
+each of them through the same REST calls. The file is a NumPy ``.npz`` archive (no pickles):
+the JPEG bytes of every image end to end, their offsets, the step kinds, times and motions,
+and a JSON header (format version, the plan's SHA-256, the route, the place names).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = 1
+"""Version of the file layout; a file of another version is refused (teach again)."""
+
+KINDS = ("frame", "spin", "mark")
+
+
+@dataclass(frozen=True)
+class RecordedStep:
+    """One moment of a tour: ``kind`` ``"frame"`` (an image of the path to ``place``),
+    ``"spin"`` (an image of the spin at ``place``) or ``"mark"`` ("this is ``place``": no
+    image). ``t`` robot seconds, ``v`` m/s and ``w`` rad/s executed while the image was taken."""
+
+    kind: str
+    place: str
+    t: float
+    v: float
+    w: float
+    jpeg: bytes | None
+
+
+class RecordingError(ValueError):
+    """The file is not a tour recording this version can read; teach the tour again."""
+
+
+@dataclass(frozen=True)
+class TourRecording:
+    """Every step of a guided tour with its image. ``plan_sha256`` names the plan walked."""
+
+    plan_sha256: str
+    route: tuple[str, ...]
+    steps: tuple[RecordedStep, ...]
+
+    @property
+    def images(self) -> int:
+        """Number of images (frames and spin images)."""
+        return sum(s.jpeg is not None for s in self.steps)
+
+    def save(self, path: Path) -> None:
+        """Write the recording to ``path`` (``.npz``), atomically (a temporary file renamed)."""
+        names = sorted({s.place for s in self.steps})
+        blobs = [s.jpeg or b"" for s in self.steps]
+        offsets = np.cumsum([0, *(len(b) for b in blobs)], dtype=np.int64)
+        header = {
+            "format": FORMAT,
+            "plan_sha256": self.plan_sha256,
+            "route": list(self.route),
+            "places": names,
+        }
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".part")
+        with tmp.open("wb") as fh:
+            np.savez(
+                fh,
+                header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
+                kind=np.array([KINDS.index(s.kind) for s in self.steps], dtype=np.uint8),
+                place=np.array([names.index(s.place) for s in self.steps], dtype=np.int32),
+                tvw=np.array([(s.t, s.v, s.w) for s in self.steps], dtype=np.float64).reshape(
+                    -1, 3
+                ),
+                offsets=offsets,
+                jpeg=np.frombuffer(b"".join(blobs), dtype=np.uint8),
+            )
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> TourRecording:
+        """Read a recording written by :meth:`save`.
+
+        Raises:
+            RecordingError: missing, truncated, of another format version, or not a recording.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(bytes(z["header"]).decode())
+                if header.get("format") != FORMAT:
+                    raise RecordingError(
+                        f"{path} is a tour recording of format {header.get('format')}, this "
+                        f"version reads {FORMAT}; delete it and teach again"
+                    )
+                names = header["places"]
+                kind, place, tvw = z["kind"], z["place"], z["tvw"]
+                offsets, jpeg = z["offsets"], z["jpeg"].tobytes()
+        except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+            if isinstance(exc, RecordingError):
+                raise
+            raise RecordingError(f"{path} is not a readable tour recording: {exc}") from None
+        steps = []
+        for k in range(len(kind)):
+            blob = jpeg[offsets[k] : offsets[k + 1]]
+            steps.append(
+                RecordedStep(
+                    KINDS[int(kind[k])],
+                    names[int(place[k])],
+                    float(tvw[k, 0]),
+                    float(tvw[k, 1]),
+                    float(tvw[k, 2]),
+                    blob if KINDS[int(kind[k])] != "mark" else None,
+                )
+            )
+        return cls(
+            plan_sha256=str(header["plan_sha256"]), route=tuple(header["route"]), steps=tuple(steps)
+        )
