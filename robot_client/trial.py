@@ -8,20 +8,47 @@ from __future__ import annotations
 
 import contextlib
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import networkx as nx
+import numpy as np
 
 from robot_client.client import ApiError, TeachRepeatClient
 from robot_client.navigate import LoopParams, StepHook, drive
 from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.paths import NoPathError, path_length, shortest_path
 from robot_client.sim.robot import SimulatedRobot
+from robot_client.sim.world import Pose
 from server import schemas
 
 SUCCESS_RADIUS_M = 0.5
 """A trial succeeds when the robot says "arrived" within this distance of the goal place."""
+
+FINAL_WINDOW_S = 20.0
+"""The end of a failed trial that says why it failed (robot seconds; see :func:`cause`)."""
+START_CLEARANCE_M = 0.35
+"""A trial starts at least this far from walls and furniture (as taught and as moved)."""
+STUCK_M = 0.25
+"""A robot that stays within this many metres through the final window made no progress."""
+
+CAUSES = ("wrong place", "off target", "stuck", "lost", "timeout")
+"""Why a trial failed, in the order they are tested (see :func:`cause`)."""
+
+
+@dataclass(frozen=True)
+class StepLog:
+    """What the judge keeps of one step: robot time (s), true position (m), the command's
+    forward speed (m/s), action and behaviour, and whether the belief was localised."""
+
+    t: float
+    x: float
+    y: float
+    v: float
+    action: str
+    behaviour: str
+    localised: bool
 
 
 @dataclass(frozen=True)
@@ -41,6 +68,9 @@ class TrialResult:
     steps: int
     explore_fraction: float
     actions: dict[str, int]
+    behaviours: dict[str, int]  # frames per behaviour of the motion layer
+    final_behaviour: str | None  # the behaviour of the last frame
+    cause: str | None  # why it failed (one of CAUSES), None on success
 
     @property
     def path_ratio(self) -> float:
@@ -58,6 +88,50 @@ class TrialResult:
             "path_ratio": self.path_ratio,
             "free_space_ratio": self.free_space_ratio,
         }
+
+
+def cause(
+    *,
+    success: bool,
+    state: str,
+    reason: str | None,
+    wrong_arrival: bool,
+    log: Sequence[StepLog],
+    window_s: float = FINAL_WINDOW_S,
+    stuck_m: float = STUCK_M,
+) -> str | None:
+    """Why a trial failed (``None`` when it succeeded), the first that applies:
+
+    * ``wrong place``: it said "arrived" nearer another place than the goal;
+    * ``off target``: it said "arrived" at the goal, but more than 0.5 m from it;
+    * ``stuck``: the server said so, or through the last ``window_s`` of robot time the robot
+      stayed within ``stuck_m`` of where it was while trying to drive on at least half of the
+      frames (Navigate, or a forward or backward speed of 2 cm/s or more);
+    * ``lost``: the server gave up on its position, or the belief was not localised on at
+      least half of the frames of the last ``window_s``;
+    * ``timeout``: time ran out while it was still making its way.
+    """
+    if success:
+        return None
+    if state == "arrived":
+        return "wrong place" if wrong_arrival else "off target"
+    reason = reason or ""
+    if reason.startswith("stuck"):
+        return "stuck"
+    if reason.startswith("lost"):
+        return "lost"
+    if log:
+        end = log[-1].t
+        tail = [s for s in log if s.t >= end - window_s]
+        x0, y0 = tail[0].x, tail[0].y
+        stayed = max(math.hypot(s.x - x0, s.y - y0) for s in tail) < stuck_m
+        driving = sum(s.action == "navigate" or abs(s.v) >= 0.02 for s in tail)
+        long_enough = end - log[0].t >= window_s
+        if long_enough and stayed and driving >= 0.5 * len(tail):
+            return "stuck"
+        if sum(not s.localised for s in tail) >= 0.5 * len(tail):
+            return "lost"
+    return "timeout"
 
 
 def taught_route_m(
@@ -120,6 +194,27 @@ def run_trial(
     if tour is not None:
         taught = taught_route_m(robot.world, plan, tour, (pose.x, pose.y), goal)
     t0, odo0 = robot.now(), robot.odometer
+    log: list[StepLog] = []
+    behaviours: dict[str, int] = {}
+
+    def judge(step: int, result: schemas.NavigationFrameResult) -> None:
+        pose, command = robot.pose, result.command
+        name = command.behaviour or "none"
+        behaviours[name] = behaviours.get(name, 0) + 1
+        log.append(
+            StepLog(
+                robot.now(),
+                pose.x,
+                pose.y,
+                command.v,
+                command.action,
+                name,
+                result.belief.localised,
+            )
+        )
+        if on_step is not None:
+            on_step(step, result)
+
     client.goto(robot_name, goal)
     outcome = drive(
         client,
@@ -129,7 +224,7 @@ def run_trial(
         clock=robot,
         depth=robot,
         params=LoopParams(max_steps=max_steps, wait_for_answer=True),
-        on_step=on_step,
+        on_step=judge,
     )
     state: str = "underway"
     reason: str | None = "ran out of steps"
@@ -145,13 +240,15 @@ def run_trial(
     near, _ = nearest_place(plan, end.x, end.y)
     arrived = state == "arrived"
     explore = outcome.actions.get("explore", 0)
+    success = arrived and distance <= SUCCESS_RADIUS_M
+    wrong = arrived and near != goal
     return TrialResult(
         goal=goal,
         start=start,
         state=state,
         reason=reason,
-        success=arrived and distance <= SUCCESS_RADIUS_M,
-        wrong_arrival=arrived and near != goal,
+        success=success,
+        wrong_arrival=wrong,
         distance_m=distance,
         nearest_place=near,
         time_s=robot.now() - t0,
@@ -161,4 +258,46 @@ def run_trial(
         steps=outcome.steps,
         explore_fraction=explore / outcome.steps if outcome.steps else 0.0,
         actions=outcome.actions,
+        behaviours=behaviours,
+        final_behaviour=log[-1].behaviour if log else None,
+        cause=cause(success=success, state=state, reason=reason, wrong_arrival=wrong, log=log),
     )
+
+
+def draw_trial(plan: FloorPlan, seed: int, trial: int) -> tuple[Pose, str, int]:
+    """Start pose, goal and noise seed of trial number ``trial`` of a run seeded ``seed``.
+
+    They depend on ``(seed, trial)`` and the plan alone, not on which other trials run or in
+    what order (so trials can be run alone, in any order, on any number of workers), and are
+    the same in every condition: the start is free in the home as taught and as moved. Every
+    fourth trial of a plan with look-alike places starts within 0.8 m of one of them (in turn),
+    where telling them apart is hardest; the others start anywhere free.
+    """
+    from robot_client.sim.world import PlanGeometry
+
+    rng = np.random.default_rng([seed, trial])
+    goal = plan.places[int(rng.integers(len(plan.places)))].name
+    noise = int(rng.integers(2**31))
+    key = "trial.geometries"
+    if key not in plan._cache:
+        plan._cache[key] = (PlanGeometry(plan), PlanGeometry(plan, condition="moved"))
+    geometries = plan._cache[key]
+
+    def free(x: float, y: float) -> bool:
+        inside = plan.room_at(x, y) is not None
+        return inside and not any(g.collides(x, y, START_CLEARANCE_M) for g in geometries)
+
+    aliases = [name for pair in plan.aliases for name in pair]
+    if aliases and trial % 4 == 3:
+        place = plan.place(aliases[trial // 4 % len(aliases)])
+        for _ in range(100):
+            x = place.x + rng.uniform(-0.8, 0.8)
+            y = place.y + rng.uniform(-0.8, 0.8)
+            if free(x, y):
+                return Pose(float(x), float(y), float(rng.uniform(-math.pi, math.pi))), goal, noise
+    x0, y0, x1, y1 = plan.bounds
+    for _ in range(10_000):
+        x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
+        if free(x, y):
+            return Pose(float(x), float(y), float(rng.uniform(-math.pi, math.pi))), goal, noise
+    raise RuntimeError(f"no free start pose in plan {plan.name!r}")

@@ -1,44 +1,72 @@
-"""``teachrepeat bench navigate``: closed-loop navigation in the simulated home.
+"""``teachrepeat bench navigate``: closed-loop navigation in simulated homes, across homes and
+conditions in one run.
 
-One teaching tour (the default guide route, taught in the ``same`` home), then N trials in the
-chosen condition, each from a random free pose (every fourth one inside the look-alike rooms)
-to a random place. The robot is carried between trials without being told: every trial starts
-with a kidnapping. Success = the robot says "arrived" within 0.5 m of the place. Each trial's
-start, goal and noise depend only on the seed and the trial number (a closed loop is chaotic:
-otherwise one trial that went differently would change every later one).
+Per plan: one teaching tour (the plan's route, walked in the home as taught), then N trials in
+each chosen condition, each from a random free pose (every fourth one beside a look-alike place,
+when the plan has some) to a random place. The robot is carried to its start without being
+told: every trial starts with a kidnapping. Success = the robot says "arrived" within 0.5 m of
+the place. A trial's start, goal and noise depend only on the seed and its number (the same in
+every condition, so conditions compare trial by trial), and its outcome does not depend on which
+other trials run, in what order or on how many workers (``server.bench.nav_sweep``).
+
+Per plan x condition the JSON has trials, successes, the success rate with its Wilson 95 %
+interval, wrong arrivals, median and p90 path ratio, median time (robot seconds) and the failures
+counted by cause and by the behaviour active at the end; pooled figures follow. With one plan
+and one condition the same figures are also at the top level (the keys of earlier versions).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import random
+import math
 import sys
+import tempfile
+import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from server.bench.common import stats, write_json
+from server.bench.common import stats, wilson_interval, write_json
+
+CONDITIONS = ("same", "lighting", "moved")
+DEFAULT_CACHE = Path("data") / "cache" / "tours"
+"""Tour recordings, relative to the working directory (``--cache``)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trials", type=int, default=50, help="navigation trials (default 50)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument(
+        "--plan",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="floor plan JSON files (default: the packaged apartment)",
+    )
     parser.add_argument(
         "--condition",
-        choices=("same", "lighting", "moved"),
-        default="same",
-        help="how the home differs from when it was taught",
+        nargs="+",
+        choices=CONDITIONS,
+        default=["same"],
+        help="how the home differs from when it was taught (several: each in turn)",
     )
+    parser.add_argument("--trials", type=int, default=50, help="trials per plan and condition")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--max-steps", type=int, default=1500, help="frames per trial at most")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="trials run in this many processes, each with its own server (same outcomes)",
+    )
     parser.add_argument(
         "--only",
         type=_trial_list,
         default=None,
-        help="run only these trials (comma-separated numbers, e.g. 2,5,14); the others are "
-        "drawn but not driven, so each one starts as in the full run; most then go as they "
-        "went there, not every one (docs/navigation.md)",
+        help="run only these trial numbers (comma-separated, e.g. 2,5,14): each goes exactly "
+        "as it does in the full run",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument(
@@ -48,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         type=_setting,
         default=[],
-        help="run the server with this navigation setting changed (repeatable; dotted names "
+        help="run the servers with this navigation setting changed (repeatable; dotted names "
         "for nested ones, values as JSON): --set dock_second_axis=false --set "
         "motion.unstick_s=6. For ablations: the same trials with and without a change",
     )
@@ -57,8 +85,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         help="write every step of every trial (true pose, command, top beliefs) to "
-        "DIR/trial_NNN.jsonl, to see why a trial failed",
+        "DIR/PLAN/CONDITION/trial_NNN.jsonl, to see why a trial failed",
     )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=DEFAULT_CACHE,
+        help="keep each plan's walked tour here, per plan, seed and code "
+        f"(default {DEFAULT_CACHE})",
+    )
+    parser.add_argument("--no-cache", action="store_true", help="walk every tour afresh")
 
 
 def _setting(text: str) -> tuple[str, Any]:
@@ -84,135 +120,168 @@ def _trial_list(text: str) -> frozenset[int]:
     return trials
 
 
-def _start_pose(world: Any, plan: Any, rng: np.random.Generator, trial: int) -> Any:
-    from robot_client.sim.world import Pose
-
-    aliases = [name for group in plan.aliases for name in group] if plan.aliases else []
-    if aliases and trial % 4 == 3:
-        place = next(p for p in plan.places if p.name == aliases[trial // 4 % len(aliases)])
-        for _ in range(100):
-            x = place.x + rng.uniform(-0.8, 0.8)
-            y = place.y + rng.uniform(-0.8, 0.8)
-            if not world.collides(x, y, 0.3):
-                return Pose(x, y, rng.uniform(-np.pi, np.pi))
-    return world.free_random_pose(rng)
-
-
-def _tracer(robot: Any, out: list[dict[str, Any]]) -> Any:
-    """A step hook that records the true pose, the command and the top beliefs."""
-
-    def hook(step: int, result: Any) -> None:
-        pose, c = robot.pose, result.command
-        out.append(
-            {
-                "step": step,
-                "t": round(robot.now(), 2),
-                "pose": [round(pose.x, 3), round(pose.y, 3), round(pose.theta, 3)],
-                "action": c.action,
-                "behaviour": c.behaviour,
-                "edge": c.edge,
-                "target_image": c.target_image_id,
-                "v": round(c.v, 3),
-                "w": round(c.w, 3),
-                "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
-            }
-        )
-
-    return hook
-
-
-def _write_trace(path: Path, rows: list[dict[str, Any]]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
-
-
 def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
-    """The server's environment for ``--set`` (checked here first, so a typo fails fast)."""
+    """The servers' environment for ``--set`` (checked here first, so a typo fails fast), with
+    the benchmark's own settings (:data:`server.bench.nav_sweep.BENCH_SERVER_SETTINGS`)."""
+    from server.bench.nav_sweep import BENCH_SERVER_SETTINGS
     from server.session import NavigationParams
     from server.tuning import tuned
 
-    overrides = dict(settings)
+    overrides = {**BENCH_SERVER_SETTINGS, **dict(settings)}
     tuned(NavigationParams(), overrides)  # ValueError names what is wrong
-    return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)} if overrides else {}
+    return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)}
+
+
+CAUSES_ORDER = ("wrong place", "off target", "stuck", "lost", "timeout")
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The figures of a group of trial rows (see the module docstring)."""
+    ok = [r for r in rows if r["success"]]
+    failed = [r for r in rows if not r["success"]]
+    lo, hi = wilson_interval(len(ok), len(rows))
+    ratios = [r["path_ratio"] for r in ok if math.isfinite(r["path_ratio"])]
+    causes = Counter(r["cause"] for r in failed)
+    behaviours = Counter(r["final_behaviour"] or "none" for r in failed)
+    return {
+        "trials": len(rows),
+        "successes": len(ok),
+        "success_rate": len(ok) / len(rows) if rows else 0.0,
+        "success_ci95": [lo, hi],
+        "wrong_arrivals": sum(bool(r["wrong_arrival"]) for r in rows),
+        "median_path_ratio": stats(ratios)["p50"],
+        "p90_path_ratio": float(np.percentile(ratios, 90)) if ratios else math.nan,
+        "median_time_s": stats([r["time_s"] for r in ok])["p50"],
+        "median_free_space_ratio": stats([r["free_space_ratio"] for r in ok])["p50"],
+        "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
+        "failures_by_cause": {c: causes[c] for c in CAUSES_ORDER if causes[c]},
+        "failures_by_behaviour": dict(sorted(behaviours.items())),
+    }
+
+
+def _line(label: str, s: dict[str, Any]) -> str:
+    lo, hi = s["success_ci95"]
+    causes = ", ".join(f"{k} {v}" for k, v in s["failures_by_cause"].items()) or "-"
+    return (
+        f"{label:<28} {s['successes']:>3}/{s['trials']:<3} {s['success_rate']:>5.0%} "
+        f"[{lo:4.0%}, {hi:4.0%}]  {s['wrong_arrivals']:>5}  "
+        f"{s['median_path_ratio']:4.2f} / {s['p90_path_ratio']:4.2f}  "
+        f"{s['median_time_s']:6.0f} s  {causes}"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from robot_client.client import TeachRepeatClient
-    from robot_client.guide import teach_route
-    from robot_client.sim import SimulatedRobot, SimWorld, load_plan
-    from robot_client.trial import run_trial
-    from server.process import scratch_server
+    from robot_client.sim.check_plan import load_plans_or_exit
+    from server.bench.nav_sweep import (
+        SweepConfig,
+        TrialSpec,
+        group_rows,
+        prepare_recordings,
+        run_trials,
+    )
 
+    prog = "teachrepeat bench navigate"
+    if args.trials < 1 or args.workers < 1 or args.max_steps < 1:
+        print(f"{prog}: --trials, --workers and --max-steps must be at least 1", file=sys.stderr)
+        return 2
     try:
         env = _navigation_env(args.settings)
     except ValueError as exc:
-        print(f"teachrepeat bench navigate: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
-    plan = load_plan()
-    rng = random.Random(args.seed)
-    np_rng = np.random.default_rng(args.seed)
-    rows: list[dict[str, Any]] = []
-    with (
-        scratch_server("bench.sqlite", extra_env=env) as server,
-        TeachRepeatClient(server.url, server.register_robot("bench")) as client,
-    ):
-        with SimWorld(plan, condition="same", seed=args.seed) as world:
-            robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
-            graph = teach_route(client, "bench", robot, plan, tour="home")
-        print(f"taught {len(graph.locations)} places, {len(graph.edges)} edges")
-        names = [p.name for p in plan.places]
-        with SimWorld(plan, condition=args.condition, seed=args.seed) as world:
-            robot = SimulatedRobot(world, world.free_random_pose(np_rng), seed=args.seed)
-            for trial in tqdm(range(args.trials), desc=args.condition, unit="trial"):
-                start = _start_pose(world, plan, np_rng, trial)
-                goal = rng.choice(names)
-                if args.only is not None and trial not in args.only:
-                    continue  # drawn as in the full run, not driven
-                robot.teleport(start)
-                # every trial seeds its own noise: what happens in one trial does not change
-                # the noise of the next, so two versions of the code compare trial by trial
-                robot.reseed(args.seed * 1000 + trial)
-                trace: list[dict[str, Any]] = []
-                result = run_trial(
-                    client,
-                    "bench",
-                    robot,
-                    plan,
-                    goal,
-                    tour=graph,
-                    max_steps=args.max_steps,
-                    on_step=None if args.trace is None else _tracer(robot, trace),
-                )
-                if args.trace is not None:
-                    _write_trace(args.trace / f"trial_{trial:03d}.jsonl", trace)
-                rows.append({"trial": trial, **result.row()})
-                tqdm.write(
-                    f"{trial:3d} -> {goal:<12} {'ok' if result.success else result.state:9}"
-                    f" {result.distance_m:5.2f} m  {result.time_s:5.0f} s"
-                    f"  ratio {result.path_ratio:4.2f}  {result.reason or ''}"
-                )
-    successes = [r for r in rows if r["success"]]
-    summary = {
-        "condition": args.condition,
+    plans = load_plans_or_exit(args.plan or [None], prog)
+    conditions = list(dict.fromkeys(args.condition))
+    trials = [t for t in range(args.trials) if args.only is None or t in args.only]
+    specs = [TrialSpec(p, c, t) for p in range(len(plans)) for c in conditions for t in trials]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="teachrepeat-bench-") as scratch:
+        recordings = prepare_recordings(
+            [plan.source for plan in plans],
+            [plan.sha256 for plan in plans],
+            args.seed,
+            None if args.no_cache else args.cache,
+            Path(scratch),
+            workers=args.workers,
+        )
+        walk_s = time.perf_counter() - t0
+        config = SweepConfig(
+            plans=tuple(plan.source for plan in plans),
+            recordings=tuple(recordings),
+            seed=args.seed,
+            max_steps=args.max_steps,
+            env=tuple(env.items()),
+            trace=None if args.trace is None else str(args.trace),
+        )
+        bar = tqdm(total=len(specs), desc="trials", unit="trial")
+
+        def show(r: dict[str, Any]) -> None:
+            bar.update(1)
+            verdict = "ok" if r["success"] else r["cause"]
+            tqdm.write(
+                f"{r['plan']:<12} {r['condition']:<8} {r['trial']:3d} -> {r['goal']:<14} "
+                f"{verdict:<11} {r['distance_m']:5.2f} m {r['time_s']:5.0f} s (robot)  "
+                f"ratio {r['path_ratio']:4.2f}  {r['reason'] or ''}"
+            )
+
+        with bar:
+            rows, teach_s = run_trials(config, specs, workers=args.workers, on_row=show)
+    wall_s = time.perf_counter() - t0
+    results = []
+    for (plan_name, condition), group in group_rows(rows, ("plan", "condition")):
+        plan = next(p for p in plans if p.name == plan_name)
+        results.append(
+            {
+                "plan": plan.name,
+                "plan_file": Path(plan.source).name,
+                "plan_sha256": plan.sha256,
+                "condition": condition,
+                **summarise(group),
+                "rows": group,
+            }
+        )
+    pooled = summarise(rows)
+    header = (
+        f"{'plan / condition':<28} {'success':>7} {'':5} {'95% interval':<12}  {'wrong':>5}  "
+        f"path ratio p50/p90  {'time p50':>8}  failures by cause"
+    )
+    print(header)
+    for r in results:
+        print(_line(f"{r['plan']} / {r['condition']}", r))
+    if len(results) > 1:
+        print(_line("pooled", pooled))
+    print(
+        f"{len(rows)} trials in {wall_s / 60:.1f} min on {args.workers} worker(s) "
+        f"(walking tours {walk_s:.0f} s, teaching servers {teach_s:.0f} s); time = robot seconds"
+    )
+    summary: dict[str, Any] = {
+        "plans": [{"file": Path(p.source).name, "name": p.name, "sha256": p.sha256} for p in plans],
+        "conditions": conditions,
         "seed": args.seed,
+        "trials_per_group": len(trials),
+        "only": None if args.only is None else sorted(args.only),
+        "max_steps": args.max_steps,
         "settings": dict(args.settings),
-        "trials": len(rows),
-        "success_rate": len(successes) / len(rows) if rows else 0.0,
-        "wrong_arrivals": sum(r["wrong_arrival"] for r in rows),
-        "median_time_s": stats([r["time_s"] for r in successes])["p50"],
-        "median_path_ratio": stats([r["path_ratio"] for r in successes])["p50"],
-        "median_free_space_ratio": stats([r["free_space_ratio"] for r in successes])["p50"],
-        "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
+        "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),
+        "workers": args.workers,
+        "wall_s": wall_s,
+        "walk_tours_s": walk_s,
+        "teach_servers_s": teach_s,
+        "time_unit": "time_s and median_time_s are robot (simulated) seconds",
         "path_ratio_definition": "driven metres / shortest taught route (free space to a place, "
         "then taught edges by their taught lengths); free_space_ratio: / A* path on the plan",
-        "rows": rows,
+        "success_definition": "said 'arrived' within 0.5 m of the goal place",
+        "causes": "wrong place: arrived nearer another place; off target: arrived at the goal "
+        "but > 0.5 m off; stuck: stayed within 0.25 m through the last 20 s while driving; "
+        "lost: the belief not localised on half of the last 20 s; timeout: the rest",
+        "pooled": pooled,
     }
-    print(
-        f"{args.condition}: {len(successes)}/{len(rows)} = {summary['success_rate']:.0%} success, "
-        f"{summary['wrong_arrivals']} wrong arrivals, median {summary['median_time_s']:.0f} s, "
-        f"median path ratio {summary['median_path_ratio']:.2f}"
-    )
+    if len(results) == 1:
+        only = results[0]
+        summary.update({k: v for k, v in only.items() if k != "rows"})
+        summary["rows"] = only["rows"]
+    else:
+        summary["results"] = results
     write_json(args.json, summary)
     return 0

@@ -1,0 +1,346 @@
+"""Run many closed-loop navigation trials, in one process or several, with the same outcomes.
+
+A trial depends only on the code, the plan, the seed, the condition and its own number:
+
+* its start pose, goal and noise are drawn from ``(seed, trial)`` alone
+  (:func:`robot_client.trial.draw_trial`), the same for every condition of a plan;
+* it runs with a robot registered for it alone (a fresh session on the server) and a simulated
+  robot created for it (its clock starts at 0), so nothing of an earlier trial reaches it;
+* the simulated robot waits for every answer and its clock stands still meanwhile, and the
+  benchmark server's only wall-clock rule that could end a task (the silence watchdog,
+  ``frame_timeout_s``) is turned off, so neither the machine's load nor the number of workers
+  changes what happens.
+
+The tour of each plan is walked once per plan and seed and kept as a recording
+(:class:`robot_client.tour_recording.TourRecording`) in a cache folder, keyed by the plan's
+SHA-256, the seed and a hash of the code that renders and walks it; every worker teaches its own
+server from that recording through the REST API.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import multiprocessing as mp
+import queue
+import signal
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+BENCH_SERVER_SETTINGS: dict[str, Any] = {"frame_timeout_s": 1e9, "history": 1}
+"""Navigation settings every benchmark server runs with, beside ``--set`` ones: no silence
+watchdog (wall clock; the simulated robot's clock stands still while it waits) and a history of
+one step per robot (the dashboard's; each trial has its own robot). Neither changes a command."""
+
+_RECORDING_CODE = (
+    "robot_client/guide.py",
+    "robot_client/tour_recording.py",
+    "robot_client/sim/floorplan.py",
+    "robot_client/sim/paths.py",
+    "robot_client/sim/robot.py",
+    "robot_client/sim/route.py",
+    "robot_client/sim/textures.py",
+    "robot_client/sim/world.py",
+    "server/imaging.py",
+)
+"""The code a tour recording depends on: a change to any of these files makes a new one."""
+
+
+@dataclass(frozen=True)
+class TrialSpec:
+    """Which trial: plan (index into the sweep's plans), condition and trial number."""
+
+    plan: int
+    condition: str
+    trial: int
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """What every worker needs (plain data: it crosses process boundaries)."""
+
+    plans: tuple[str, ...]  # plan files
+    recordings: tuple[str, ...]  # the tour recording of each plan
+    seed: int
+    max_steps: int
+    env: tuple[tuple[str, str], ...]  # the benchmark server's environment
+    trace: str | None  # folder for per-step traces
+
+
+def recording_key(plan_sha256: str, seed: int) -> str:
+    """File name of the recording of a plan's tour for a seed, with a hash of the code."""
+    from importlib.metadata import version
+
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha256(f"mujoco {version('mujoco')}\n".encode())  # not imported: see SimWorld
+    for name in _RECORDING_CODE:
+        h.update((root / name).read_bytes())
+    return f"{plan_sha256[:16]}-seed{seed}-{h.hexdigest()[:12]}.npz"
+
+
+def record(plan_file: str, seed: int, out: str) -> float:
+    """Walk the plan's teaching route in the home as taught and save it to ``out``; seconds
+    taken."""
+    from robot_client.guide import record_tour
+    from robot_client.sim import SimulatedRobot, SimWorld, load_plan
+    from robot_client.sim.world import Pose
+
+    t0 = time.perf_counter()
+    plan = load_plan(plan_file)
+    first = plan.places[0]
+    with SimWorld(plan, condition="same", seed=seed) as world:
+        robot = SimulatedRobot(world, Pose(first.x, first.y, first.yaw), seed=seed)
+        record_tour(robot, plan).save(Path(out))
+    return time.perf_counter() - t0
+
+
+class Worker:
+    """One benchmark server and the simulated homes; runs trials one at a time."""
+
+    def __init__(self, config: SweepConfig) -> None:
+        from robot_client.sim import load_plan
+        from server.process import scratch_server
+
+        self.config = config
+        self._stack = contextlib.ExitStack()
+        self.server = self._stack.enter_context(
+            scratch_server("bench.sqlite", extra_env=dict(config.env))
+        )
+        self.plans = [load_plan(p) for p in config.plans]
+        self._tours: dict[int, Any] = {}
+        self._worlds: dict[tuple[int, str], Any] = {}
+        self.teach_s = 0.0
+
+    def close(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> Worker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def tour(self, plan: int) -> Any:
+        """The taught graph of ``plan`` on this worker's server (taught on first use)."""
+        if plan not in self._tours:
+            from robot_client.client import TeachRepeatClient
+            from robot_client.guide import upload_tour
+            from robot_client.tour_recording import TourRecording
+
+            t0 = time.perf_counter()
+            recording = TourRecording.load(Path(self.config.recordings[plan]))
+            name = f"teacher-{plan}"
+            with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
+                self._tours[plan] = upload_tour(
+                    client, name, recording.steps, tour=f"home {plan}: {self.plans[plan].name}"
+                )
+            self.teach_s += time.perf_counter() - t0
+        return self._tours[plan]
+
+    def world(self, plan: int, condition: str) -> Any:
+        key = (plan, condition)
+        if key not in self._worlds:
+            from robot_client.sim import SimWorld
+
+            self._worlds[key] = self._stack.enter_context(
+                SimWorld(self.plans[plan], condition=condition, seed=self.config.seed)
+            )
+        return self._worlds[key]
+
+    def run(self, spec: TrialSpec) -> dict[str, Any]:
+        """One trial; its row (``TrialResult.row()`` plus which trial and its wall seconds)."""
+        from robot_client.client import TeachRepeatClient
+        from robot_client.sim import SimulatedRobot
+        from robot_client.trial import draw_trial, run_trial
+
+        plan = self.plans[spec.plan]
+        graph = self.tour(spec.plan)
+        world = self.world(spec.plan, spec.condition)
+        start, goal, noise = draw_trial(plan, self.config.seed, spec.trial)
+        name = f"trial-{spec.plan}-{spec.condition}-{spec.trial}"
+        t0 = time.perf_counter()
+        trace: list[dict[str, Any]] = []
+        with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
+            robot = SimulatedRobot(world, start, seed=noise)
+            result = run_trial(
+                client,
+                name,
+                robot,
+                plan,
+                goal,
+                tour=graph,
+                max_steps=self.config.max_steps,
+                on_step=None if self.config.trace is None else _tracer(robot, trace),
+            )
+        if self.config.trace is not None:
+            folder = Path(self.config.trace) / _slug(plan.name) / spec.condition
+            folder.mkdir(parents=True, exist_ok=True)
+            lines = "".join(json.dumps(r) + "\n" for r in trace)
+            (folder / f"trial_{spec.trial:03d}.jsonl").write_text(lines)
+        return {
+            "plan": plan.name,
+            "condition": spec.condition,
+            "trial": spec.trial,
+            **result.row(),
+            "wall_s": time.perf_counter() - t0,
+        }
+
+
+def _slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name)
+
+
+def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]:
+    """A step hook that records the true pose, the command and the top beliefs."""
+
+    def hook(step: int, result: Any) -> None:
+        pose, c = robot.pose, result.command
+        out.append(
+            {
+                "step": step,
+                "t": round(robot.now(), 2),
+                "pose": [round(pose.x, 3), round(pose.y, 3), round(pose.theta, 3)],
+                "action": c.action,
+                "behaviour": c.behaviour,
+                "edge": c.edge,
+                "target_image": c.target_image_id,
+                "v": round(c.v, 3),
+                "w": round(c.w, 3),
+                "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
+            }
+        )
+
+    return hook
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)  # so that the worker's scratch server is stopped
+
+
+def _serve(config: SweepConfig, tasks: Any, results: Any) -> None:
+    """A worker process: run the trials it is given until it gets ``None``."""
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    with Worker(config) as worker:
+        while True:
+            spec = tasks.get()
+            if spec is None:
+                break
+            try:
+                results.put(("row", spec, worker.run(spec)))
+            except Exception:
+                results.put(("error", spec, traceback.format_exc()))
+                return
+        results.put(("teach_s", None, worker.teach_s))
+
+
+def run_trials(
+    config: SweepConfig,
+    specs: Sequence[TrialSpec],
+    *,
+    workers: int = 1,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> tuple[list[dict[str, Any]], float]:
+    """Run every trial of ``specs`` on ``workers`` processes (1: in this process); the rows in
+    the order of ``specs`` and the seconds spent teaching the workers' servers.
+
+    Raises:
+        RuntimeError: a trial raised (the message has the worker's traceback).
+    """
+    if workers <= 1:
+        rows = []
+        with Worker(config) as worker:
+            for spec in specs:
+                rows.append(worker.run(spec))
+                if on_row:
+                    on_row(rows[-1])
+            return rows, worker.teach_s
+    ctx = mp.get_context("spawn")  # MuJoCo's OpenGL context and threads do not survive fork
+    tasks: Any = ctx.Queue()
+    results: Any = ctx.Queue()
+    for spec in specs:
+        tasks.put(spec)
+    n = min(workers, len(specs))
+    for _ in range(n):
+        tasks.put(None)
+    procs = [ctx.Process(target=_serve, args=(config, tasks, results)) for _ in range(n)]
+    for p in procs:
+        p.start()
+    got: dict[TrialSpec, dict[str, Any]] = {}
+    teach_s, finished = 0.0, 0
+    try:
+        while finished < n:
+            try:
+                kind, spec, payload = results.get(timeout=5.0)
+            except queue.Empty:
+                if not any(p.is_alive() for p in procs):
+                    raise RuntimeError(
+                        "every benchmark worker died; see the messages above"
+                    ) from None
+                continue
+            if kind == "error":
+                raise RuntimeError(f"trial {spec} failed in a worker:\n{payload}")
+            if kind == "teach_s":
+                teach_s += payload
+                finished += 1
+                continue
+            got[spec] = payload
+            if on_row:
+                on_row(payload)
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=30)
+    return [got[s] for s in specs], teach_s
+
+
+def prepare_recordings(
+    plan_files: Sequence[str],
+    plan_sha256: Sequence[str],
+    seed: int,
+    cache: Path | None,
+    scratch: Path,
+    *,
+    workers: int = 1,
+    log: Callable[[str], None] = print,
+) -> list[str]:
+    """The tour recording of every plan: from ``cache`` when there, walked (in parallel on
+    ``workers`` processes) and stored there otherwise. ``cache=None``: always walked, into
+    ``scratch``."""
+    folder = scratch if cache is None else cache
+    paths = [str(folder / recording_key(sha, seed)) for sha in plan_sha256]
+    missing = [(f, p) for f, p in zip(plan_files, paths, strict=True) if not Path(p).exists()]
+    for f, p in zip(plan_files, paths, strict=True):
+        if (f, p) not in missing:
+            log(f"tour of {f}: from the cache ({p})")
+    if not missing:
+        return paths
+    log(f"walking the tour of {len(missing)} plan(s) (cached afterwards)")
+    if workers <= 1 or len(missing) == 1:
+        for f, p in missing:
+            log(f"tour of {f}: walked in {record(f, seed, p):.0f} s -> {p}")
+        return paths
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(missing)), mp_context=ctx) as pool:
+        futures = [(f, p, pool.submit(record, f, seed, p)) for f, p in missing]
+        for f, p, fut in futures:
+            log(f"tour of {f}: walked in {fut.result():.0f} s -> {p}")
+    return paths
+
+
+def group_rows(
+    rows: Sequence[dict[str, Any]], keys: Sequence[str]
+) -> Iterator[tuple[tuple[Any, ...], list[dict[str, Any]]]]:
+    """Rows grouped by the values of ``keys``, groups in first-seen order."""
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    yield from groups.items()

@@ -1,0 +1,63 @@
+"""A home written as data, taught and navigated end to end by ``teachrepeat bench navigate``,
+with the same outcome for every trial whatever the number of workers or the trials run.
+
+The two-room plan of tests/data/plans is walked once (then taken from the cache), taught to
+each worker's real server through the REST API, and navigated in the real simulator.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from server.cli import main
+
+PLAN = Path(__file__).resolve().parents[1] / "data" / "plans" / "two_rooms.json"
+
+
+def bench(tmp_path: Path, name: str, *extra: str) -> dict[str, Any]:
+    out = tmp_path / f"{name}.json"
+    args = ["bench", "navigate", "--plan", str(PLAN), "--trials", "3", "--seed", "2"]
+    args += ["--max-steps", "400", "--cache", str(tmp_path / "cache"), "--json", str(out)]
+    assert main([*args, *extra]) == 0
+    return json.loads(out.read_text())
+
+
+def rows(result: dict[str, Any]) -> list[dict[str, Any]]:
+    groups = result.get("results", [result])
+    return [{k: v for k, v in r.items() if k != "wall_s"} for g in groups for r in g["rows"]]
+
+
+@pytest.mark.slow
+def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_workers(
+    tmp_path: Path,
+) -> None:
+    one = bench(tmp_path, "one", "--condition", "same", "moved", "--workers", "1")
+    two = bench(tmp_path, "two", "--condition", "same", "moved", "--workers", "2")
+    alone = bench(tmp_path, "alone", "--condition", "moved", "--workers", "1", "--only", "2")
+
+    assert rows(one) == rows(two)  # trial for trial, to the robot microsecond and millimetre
+    assert rows(alone) == [r for r in rows(one) if r["condition"] == "moved" and r["trial"] == 2]
+    # the plan's identity is in every result, and the figures are per plan x condition
+    assert [p["file"] for p in one["plans"]] == ["two_rooms.json"]
+    assert len(one["plans"][0]["sha256"]) == 64
+    assert [(r["plan"], r["condition"]) for r in one["results"]] == [
+        ("two rooms", "same"),
+        ("two rooms", "moved"),
+    ]
+    assert alone["plan_sha256"] == one["plans"][0]["sha256"]  # one group: at the top level too
+    assert alone["success_rate"] in (0.0, 1.0) and "median_path_ratio" in alone
+    pooled = one["pooled"]
+    assert pooled["trials"] == 6 and pooled["wrong_arrivals"] == 0
+    assert pooled["successes"] >= 4, rows(one)  # the place across the door is found
+    for r in rows(one):
+        assert r["success"] or r["cause"] in (
+            "wrong place",
+            "off target",
+            "stuck",
+            "lost",
+            "timeout",
+        )
