@@ -215,7 +215,7 @@ def run_trial(
         if on_step is not None:
             on_step(step, result)
 
-    client.goto(robot_name, goal)
+    client.goto(robot_name, goal, tour=None if tour is None else tour.id)
     outcome = drive(
         client,
         robot_name,

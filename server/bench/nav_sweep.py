@@ -183,6 +183,7 @@ class Worker:
             lines = "".join(json.dumps(r) + "\n" for r in trace)
             (folder / f"trial_{spec.trial:03d}.jsonl").write_text(lines)
         return {
+            "plan_index": spec.plan,
             "plan": plan.name,
             "condition": spec.condition,
             "trial": spec.trial,

@@ -229,8 +229,8 @@ def run(args: argparse.Namespace) -> int:
             rows, teach_s = run_trials(config, specs, workers=args.workers, on_row=show)
     wall_s = time.perf_counter() - t0
     results = []
-    for (plan_name, condition), group in group_rows(rows, ("plan", "condition")):
-        plan = next(p for p in plans if p.name == plan_name)
+    for (index, condition), group in group_rows(rows, ("plan_index", "condition")):
+        plan = plans[index]
         results.append(
             {
                 "plan": plan.name,
