@@ -70,6 +70,7 @@ class TrialResult:
     actions: dict[str, int]
     behaviours: dict[str, int]  # frames per behaviour of the motion layer
     final_behaviour: str | None  # the behaviour of the last frame
+    final_reason: str | None  # why that behaviour chose the last command
     cause: str | None  # why it failed (one of CAUSES), None on success
 
     @property
@@ -260,6 +261,7 @@ def run_trial(
         actions=outcome.actions,
         behaviours=behaviours,
         final_behaviour=log[-1].behaviour if log else None,
+        final_reason=None if outcome.last is None else outcome.last.command.reason,
         cause=cause(success=success, state=state, reason=reason, wrong_arrival=wrong, log=log),
     )
 

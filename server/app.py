@@ -18,8 +18,8 @@ from server.api.routes import images, navigate, robots, teach, tours
 from server.config import Settings
 from server.errors import DomainError
 from server.imaging import ImageLimits
+from server.navigation import NavigationParams
 from server.services.container import Services
-from server.session import NavigationParams
 from server.storage.repo import Repo
 from server.tuning import tuned
 

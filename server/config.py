@@ -46,7 +46,7 @@ class Settings(BaseSettings):
     )
     navigation: dict[str, Any] = Field(
         default_factory=dict,
-        description="Overrides of the navigation settings (server.session.NavigationParams, "
+        description="Overrides of the navigation settings (server.navigation.NavigationParams, "
         'dotted names for nested ones), JSON in the environment: {"dock_second_axis": false, '
         '"motion.unstick_s": 6}. Unknown names and wrong types stop the server at start.',
     )

@@ -221,7 +221,12 @@ class MotionCommand(_Model):
     behaviour: str = Field(
         default="stand",
         description="What the motion layer is doing: stand, follow, leave, search, explore, "
-        "unstick, backoff, dock or place-dock (server.session.BEHAVIOURS).",
+        "unstick, backoff, dock or place-dock (server.navigation.BEHAVIOURS).",
+    )
+    reason: str | None = Field(
+        default=None,
+        description="Why the behaviour that won this frame chose the command (the arbiter's "
+        "precedence: server.navigation.arbiter); none without a task underway.",
     )
 
 

@@ -26,7 +26,7 @@ import logging
 import math
 import re
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -45,6 +45,7 @@ from web.publisher import Publisher, Snapshot, StepView
 if TYPE_CHECKING:
     from server.domain import Edge, TourGraph
     from server.services.container import Services
+    from server.session import Segment
 
 log = logging.getLogger(__name__)
 
@@ -321,6 +322,84 @@ def side_by_side(
     return np.ascontiguousarray(np.concatenate([a, gap, b], axis=1))
 
 
+BEHAVIOUR_COLOURS: dict[str, tuple[int, int, int]] = {
+    "follow": (37, 99, 235),
+    "leave": (14, 165, 233),
+    "search": (234, 179, 8),
+    "explore": (168, 85, 247),
+    "unstick": (220, 38, 38),
+    "backoff": (249, 115, 22),
+    "dock": (22, 163, 74),
+    "place-dock": (132, 204, 22),
+    "stand": (148, 163, 184),
+}
+"""RGB colour of each behaviour in the dashboard's strip (server.navigation.BEHAVIOURS)."""
+
+
+def behaviour_strip(timeline: Sequence[Segment], *, width: int = 540) -> ImageArray:
+    """The current task's behaviours over time as a coloured strip (robot seconds from the
+    task's first frame along x), with a legend of the behaviours it shows and their share."""
+    bar_h, legend_h = 22, 22
+    img = np.full((bar_h + 16 + legend_h, width, 3), 255, dtype=np.uint8)
+    if not timeline:
+        cv2.putText(
+            img,
+            "behaviours: no task yet",
+            (6, 16),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (90, 90, 90),
+            1,
+            cv2.LINE_AA,
+        )
+        return img
+    t0 = timeline[0].t0
+    span = max(timeline[-1].t1 - t0, 1e-6)
+    share: dict[str, float] = {}
+    for seg in timeline:
+        x0 = int((seg.t0 - t0) / span * (width - 1))
+        x1 = max(x0 + 1, int((seg.t1 - t0) / span * (width - 1)) + 1)
+        img[:bar_h, x0:x1] = BEHAVIOUR_COLOURS.get(seg.behaviour, (60, 60, 60))
+        share[seg.behaviour] = share.get(seg.behaviour, 0.0) + seg.t1 - seg.t0 + 0.1
+    for k in range(0, int(span) + 1, max(1, int(span) // 6 or 1)):
+        x = int(k / span * (width - 1))
+        cv2.putText(
+            img,
+            f"{k}s",
+            (min(x, width - 30), bar_h + 12),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.35,
+            (90, 90, 90),
+            1,
+            cv2.LINE_AA,
+        )
+    x = 4
+    total = sum(share.values())
+    for name, t in sorted(share.items(), key=lambda kv: -kv[1]):
+        label = f"{name} {t / total:.0%}"
+        cv2.rectangle(
+            img,
+            (x, bar_h + 20),
+            (x + 10, bar_h + 30),
+            BEHAVIOUR_COLOURS.get(name, (60, 60, 60)),
+            -1,
+        )
+        cv2.putText(
+            img,
+            label,
+            (x + 13, bar_h + 30),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.38,
+            (40, 40, 40),
+            1,
+            cv2.LINE_AA,
+        )
+        x += 20 + 7 * len(label)
+        if x > width - 60:
+            break
+    return img
+
+
 def error_text(exc: Exception) -> str:
     """What to tell the user about a refused action."""
     if isinstance(exc, DomainError):
@@ -374,6 +453,7 @@ class Controls:
     abort: viser.GuiButtonHandle
     images: viser.GuiImageHandle
     action: viser.GuiMarkdownHandle
+    strip: viser.GuiImageHandle
     target: viser.GuiImageHandle
     votes: viser.GuiMarkdownHandle
     along_label: viser.GuiMarkdownHandle
@@ -540,6 +620,7 @@ class Dashboard:
                 side_by_side(None, None, ("camera", "best match")), label=None, format="jpeg"
             )
             action = gui.add_markdown("")
+            strip = gui.add_image(behaviour_strip(()), label=None, format="png")
             target = gui.add_image(
                 captioned(None, "target image", height=120), label=None, format="jpeg"
             )
@@ -590,6 +671,7 @@ class Dashboard:
             abort=abort,
             images=images,
             action=action,
+            strip=strip,
             target=target,
             votes=votes,
             along_label=along_label,
@@ -774,12 +856,14 @@ class Dashboard:
         votes_md = _votes_text(step, graph)
         along = _along_edge_data(step, graph)
         over = _over_time_data(snap, graph)
+        strip = behaviour_strip(snap.timeline)
         server = self.server
         assert server is not None
         with server.atomic():
             c.images.image = images
             c.target.image = target_img
             self._put("action", c.action, "content", action_md)
+            c.strip.image = strip
             self._put("votes", c.votes, "content", votes_md)
             if along is not None:
                 title, data = along
@@ -980,9 +1064,10 @@ def _action_text(step: StepView, graph: TourGraph) -> str:
         where = f" on {graph.state_name(graph.n_locations + step.action_edge)}"
     top = ", ".join(f"{graph.state_name(s)} {p:.2f}" for s, p in step.top_states[:3])
     loc = "yes" if step.localised else "no"
+    why = f"Why: {step.reason}\n\n" if step.reason else ""
     return (
         f"**Action: {step.action}**{where} ({step.behaviour}) - v {step.v:.2f} m/s, "
-        f"w {step.w:.2f} rad/s\n\n"
+        f"w {step.w:.2f} rad/s\n\n{why}"
         f"Top states: {top}\n\n"
         f"Entropy **{step.entropy:.2f}** nats - localised: {loc}"
     )

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from server import schemas
     from server.domain import TourGraph
     from server.services.container import Services
-    from server.session import RobotSession, StepRecord
+    from server.session import RobotSession, Segment, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -62,7 +62,8 @@ class StepView:
     image_similarity: FloatArray  # (n_images,) similarity of the frame to every stored image
     action: str  # rotate_and_find_edge | navigate | explore | do_nothing
     action_edge: int | None
-    behaviour: str  # what the motion layer is doing (server.session.BEHAVIOURS)
+    behaviour: str  # what the motion layer is doing (server.navigation.BEHAVIOURS)
+    reason: str | None  # why the winning behaviour chose the command (None without a task)
     target_image: int | None  # canonical image the robot homes on (Navigate)
     votes: dict[str, float]  # vote mass per action name, sums to 1 (empty when no task)
     active_edge: int | None
@@ -107,6 +108,7 @@ class Snapshot:
     history_t: FloatArray = field(default_factory=lambda: np.zeros(0))  # robot clock, s
     history_top: FloatArray = field(default_factory=lambda: np.zeros(0))  # max b(s) per step
     history_entropy: FloatArray = field(default_factory=lambda: np.zeros(0))  # nats
+    timeline: tuple[Segment, ...] = ()  # the current task's behaviours over time
 
 
 Selection = Callable[[], tuple[str | None, int | None]]
@@ -315,6 +317,7 @@ class Publisher:
             history_t=hist_t,
             history_top=hist_top,
             history_entropy=hist_h,
+            timeline=_copy_timeline(session),
         )
 
     def _tour_of(self, session: RobotSession) -> int | None:
@@ -372,6 +375,14 @@ class Publisher:
         return jpeg
 
 
+def _copy_timeline(session: RobotSession) -> tuple[Segment, ...]:
+    """A copy of the task's behaviour timeline, taken without the session's lock."""
+    for _ in range(5):
+        with contextlib.suppress(RuntimeError):  # deque mutated during iteration
+            return tuple(session.timeline)
+    return ()
+
+
 def _copy_history(session: RobotSession) -> list[StepRecord]:
     """A copy of the session's step history, taken without its lock (retried if a step
     appended while copying)."""
@@ -421,6 +432,7 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         action=str(command.action.kind.value),
         action_edge=command.action.edge,
         behaviour=command.behaviour,
+        reason=None if record.outcome is None else record.outcome.reason,
         target_image=command.target_image,
         votes=votes,
         active_edge=None if decision is None else decision.active_edge,

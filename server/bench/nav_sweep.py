@@ -208,6 +208,7 @@ def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]
                 "pose": [round(pose.x, 3), round(pose.y, 3), round(pose.theta, 3)],
                 "action": c.action,
                 "behaviour": c.behaviour,
+                "reason": c.reason,
                 "edge": c.edge,
                 "target_image": c.target_image_id,
                 "v": round(c.v, 3),

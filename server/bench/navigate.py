@@ -124,7 +124,7 @@ def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
     """The servers' environment for ``--set`` (checked here first, so a typo fails fast), with
     the benchmark's own settings (:data:`server.bench.nav_sweep.BENCH_SERVER_SETTINGS`)."""
     from server.bench.nav_sweep import BENCH_SERVER_SETTINGS
-    from server.session import NavigationParams
+    from server.navigation import NavigationParams
     from server.tuning import tuned
 
     overrides = {**BENCH_SERVER_SETTINGS, **dict(settings)}

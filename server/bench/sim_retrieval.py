@@ -128,7 +128,7 @@ def evaluate(
     angle_deg: float,
 ) -> dict[str, Any]:
     """Recall of one engine configuration in every condition."""
-    from server.session import ROBUST_WEIGHTS
+    from server.navigation import ROBUST_WEIGHTS
     from server.vision.features import FeatureParams, extract
     from server.vision.index import EngineParams, TourIndex, learn_weights
 

@@ -6,7 +6,7 @@ its belief; the action with the most vote mass wins (ties go to Navigate).
 * the goal location votes ``DoNothing`` - unless ``hold_goal`` is False, when it votes like any
   other location, for its cheapest round trip out and back in (beyond 001: the session asks for
   that until the robot has come into the goal along a taught edge, see
-  :attr:`server.session.NavigationParams.approach_s`); the first ``round_trip_m`` of every edge
+  :attr:`server.navigation.NavigationParams.approach_s`); the first ``round_trip_m`` of every edge
   leaving the goal then vote ``Navigate``, so the robot goes out far enough to come back in
   along a stretch of taught path;
 * an edge image votes ``Navigate`` if going on (rest of the edge + cost of its target) is not

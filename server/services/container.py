@@ -7,10 +7,10 @@ from typing import Literal
 
 from server import schemas
 from server.imaging import ImageLimits
+from server.navigation import NavigationParams
 from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
-from server.session import NavigationParams
 from server.storage.repo import Repo
 
 

@@ -19,7 +19,8 @@ from server.belief.tracker import BeliefSummary
 from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
-from server.session import Command, NavigationParams, RobotSession, Task, TourRuntime
+from server.navigation import Command, NavigationParams, Task, TaskState, TourRuntime
+from server.session import RobotSession
 from server.storage.repo import NavigationRow, Repo
 from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.index import learn_weights
@@ -197,19 +198,19 @@ class NavigationService:
                 session.tracker.set_belief(belief)
         goal = _location_index(rt.graph, row.goal_location_id)
         if goal is not None:
-            session.task = Task(
-                id=row.task_id,
-                goal=goal,
-                goal_name=rt.graph.locations[goal].name,
-                started_at=row.started_at,
-                state=row.state,
-                reason=row.reason,
-                ended_at=row.ended_at,
-                steps=row.steps,
-                # how far the approach had come is not persisted: it is done again
-                approached=not session.needs_approach(goal),
+            session.resume_task(
+                Task(
+                    id=row.task_id,
+                    goal=goal,
+                    goal_name=rt.graph.locations[goal].name,
+                    started_at=row.started_at,
+                    state=TaskState(row.state),
+                    reason=row.reason,
+                    ended_at=row.ended_at,
+                    steps=row.steps,
+                )
             )
-            if row.state == "underway":
+            if row.state == TaskState.UNDERWAY:
                 session.last_frame_wall = self.clock()  # the silence clock restarts
         with self._lock:
             self._sessions[row.robot] = session
@@ -222,9 +223,9 @@ class NavigationService:
         with self._lock:
             live = self._sessions.get(robot)
         if live is not None:
-            return live.task is not None and live.task.state == "underway"
+            return live.task is not None and live.task.underway
         row = self.repo.navigation(robot)
-        return row is not None and row.state == "underway"
+        return row is not None and row.state == TaskState.UNDERWAY
 
     def _persist(self, session: RobotSession, *, belief: bool) -> None:
         task = session.task
@@ -239,7 +240,7 @@ class NavigationService:
                 tour_id=tour_id,
                 task_id=task.id,
                 goal_location_id=rt.graph.locations[task.goal].id,
-                state=task.state,
+                state=task.state.value,
                 reason=task.reason,
                 started_at=task.started_at,
                 ended_at=task.ended_at,
@@ -276,8 +277,10 @@ class NavigationService:
                 self._tour_of[robot] = tour_id
         now = self.clock()
         with session.lock:
-            if session.task is not None and session.task.state == "underway":
-                session.task.end("cancelled", f"replaced by a new goal: {body.location}", now)
+            if session.task is not None and session.task.underway:
+                session.task.end(
+                    TaskState.CANCELLED, f"replaced by a new goal: {body.location}", now
+                )
             task = Task(
                 id=self.repo.next_task_id(), goal=goal, goal_name=body.location, started_at=now
             )
@@ -302,10 +305,10 @@ class NavigationService:
     def stop(self, robot: str) -> schemas.TaskPublic:
         session = self.session(robot)
         task = None if session is None else session.task
-        if session is None or task is None or task.state != "underway":
+        if session is None or task is None or not task.underway:
             raise Conflict(f"robot {robot!r} has no navigation underway; nothing to stop")
         with session.lock:
-            task.end("cancelled", "stopped on request", self.clock())
+            task.end(TaskState.CANCELLED, "stopped on request", self.clock())
             self._persist(session, belief=True)
             return task_public(task, self._tour_of[robot])
 
@@ -340,7 +343,7 @@ class NavigationService:
             task = session.task
             changed = task is not None and task.state != before
             due = now - self._snapshot_at.get(robot, 0.0) >= BELIEF_SNAPSHOT_S
-            if task is not None and (changed or (task.state == "underway" and due)):
+            if task is not None and (changed or (task.underway and due)):
                 self._persist(session, belief=True)
             votes = (
                 {}
@@ -349,13 +352,19 @@ class NavigationService:
             )
             return schemas.NavigationFrameResult(
                 mode="navigating",
-                command=self._command_public(session, record.command),
+                command=self._command_public(
+                    session,
+                    record.command,
+                    None if record.outcome is None else record.outcome.reason,
+                ),
                 task=None if task is None else task_public(task, self._tour_of[robot]),
                 belief=belief_public(record.summary, session.runtime.graph),
                 votes=votes,
             )
 
-    def _command_public(self, session: RobotSession, command: Command) -> schemas.MotionCommand:
+    def _command_public(
+        self, session: RobotSession, command: Command, reason: str | None = None
+    ) -> schemas.MotionCommand:
         graph = session.runtime.graph
         edge = command.action.edge
         return schemas.MotionCommand(
@@ -368,6 +377,7 @@ class NavigationService:
             if command.target_image is None
             else int(graph.image_ids[command.target_image]),
             behaviour=command.behaviour,
+            reason=reason,
         )
 
     def state(self, robot: str) -> schemas.NavigationState | None:
@@ -384,7 +394,9 @@ class NavigationService:
                 belief=belief_public(summary, session.runtime.graph),
                 last_command=None
                 if session.last_command is None
-                else self._command_public(session, session.last_command),
+                else self._command_public(
+                    session, session.last_command, session.navigator.previous_reason
+                ),
             )
 
     def sweep(self) -> int:
@@ -418,7 +430,7 @@ def task_public(task: Task, tour_id: int) -> schemas.TaskPublic:
         id=task.id,
         tour=tour_id,
         goal=task.goal_name,
-        state=task.state,  # type: ignore[arg-type]
+        state=task.state.value,
         reason=task.reason,
         started_at=task.started_at,
         ended_at=task.ended_at,

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from conftest import Api, make_jpeg
 
-from server.session import BEHAVIOURS
+from server.navigation import BEHAVIOURS
 
 JPEG = {"Content-Type": "image/jpeg"}
 MARKS = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}
@@ -70,6 +70,7 @@ def test_goto_then_frames_are_answered_with_commands(
         assert command["ttl_s"] > 0
         assert command["action"] in {"rotate_and_find_edge", "navigate", "explore", "do_nothing"}
         assert command["behaviour"] in BEHAVIOURS
+        assert command["reason"]  # why the behaviour that won this frame chose the command
         assert abs(sum(body["votes"].values()) - 1.0) < 1e-6
         top = body["belief"]["top"]
         assert top and abs(top[0]["probability"]) <= 1.0

@@ -35,9 +35,9 @@ from robot_client.sim.world import Pose
 from robot_client.teach import teach_folder
 from robot_client.trial import SUCCESS_RADIUS_M, run_trial
 from server import schemas
+from server.navigation import NavigationParams
 from server.process import ADMIN, ServerProcess, start_server
 from server.services.navigation import BELIEF_SNAPSHOT_S
-from server.session import NavigationParams
 from server.storage.repo import Repo
 
 MARKS = {0: "entry", 36: "hall", 73: "office", 110: "kitchen"}

@@ -16,7 +16,7 @@ from server.motion import (
     ray_angles,
     rotate_command,
 )
-from server.session import _next_moving
+from server.navigation.runtime import next_moving as _next_moving
 
 P = MotionParams()
 

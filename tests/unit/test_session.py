@@ -15,14 +15,11 @@ from vision_testkit import scene, zoomed
 
 from server.belief.model import Action, ActionKind
 from server.domain import Edge, Location, TourGraph
-from server.session import (
-    Command,
-    DockFrame,
-    NavigationParams,
-    RobotSession,
-    Task,
-    TourRuntime,
-)
+from server.navigation import Command, NavigationParams, Task, TourRuntime
+from server.navigation.behaviours import follow_command, follow_views
+from server.navigation.docking import Docking
+from server.navigation.observation import Outcome, ViewRequest, match_views
+from server.session import RobotSession
 from server.vision.features import extract
 
 A, B, C, D = range(4)
@@ -70,6 +67,12 @@ def drive(s: RobotSession, image_of_step: object, steps: int, t0: float = 0.0) -
     return actions
 
 
+def dock(s: RobotSession) -> Docking:
+    """The docking behaviour (and approach) of the session's task."""
+    assert s.navigator.crew is not None
+    return s.navigator.crew.docking
+
+
 def rec_v(s: RobotSession) -> float:
     return 0.0 if s.last_command is None else s.last_command.v
 
@@ -98,7 +101,8 @@ def test_a_new_task_goes_as_if_nothing_had_come_before() -> None:
     used = session()
     used.start_task(Task(id=1, goal=C, goal_name="C", started_at=0.0))
     drive(used, lambda i: spin_image(C, i % 4), 20, t0=49.0)
-    used.last_command = Command(0.3, 0.0, Action.navigate(2), None, "follow")  # ended driving
+    ended_driving = Command(0.3, 0.0, Action.navigate(2), None, "follow")
+    used.navigator.previous = Outcome(ended_driving, "follow", "Navigate")
     again = second_task(used)
     assert "backoff" not in {c.behaviour for _, c in again}
     for (b1, c1), (b2, c2) in zip(again, second_task(session()), strict=True):
@@ -118,7 +122,7 @@ def test_standing_in_the_goal_room_is_not_arriving_until_the_robot_came_in_on_an
     s.start_task(Task(id=1, goal=B, goal_name="B", started_at=0.0))
     actions = drive(s, lambda i: spin_image(B, i % 4), 30)
     assert s.task is not None and s.task.state == "underway"
-    assert not s.task.approached
+    assert not dock(s).approach.done
     # it leaves by the cheapest round trip instead of doing nothing where it stands
     assert actions[-1] in (ActionKind.ROTATE_AND_FIND_EDGE.value, ActionKind.NAVIGATE.value)
 
@@ -140,7 +144,7 @@ def test_coming_in_along_an_edge_into_the_goal_arrives() -> None:
         s.step(image, timestamp=0.5 * (i + 1), v=0.3)
         if s.task is not None and s.task.state != "underway":
             break
-    assert s.task is not None and s.task.approached
+    assert s.task is not None and dock(s).approach.done
     assert s.task.state == "arrived"
 
 
@@ -148,13 +152,13 @@ def test_a_goal_that_cannot_be_left_and_reentered_needs_no_approach() -> None:
     s = session()
     task = Task(id=1, goal=D, goal_name="D", started_at=0.0)
     s.start_task(task)
-    assert task.approached and not s.needs_approach(D)
-    assert s.needs_approach(B)
+    assert dock(s).approach.done and not dock(s).needs_approach
+    assert Docking(s.runtime, B).needs_approach
 
 
 @pytest.mark.parametrize("goal", [A, B, C])
 def test_every_taught_place_with_edges_needs_an_approach(goal: int) -> None:
-    assert session().needs_approach(goal)
+    assert Docking(session().runtime, goal).needs_approach
 
 
 def _watchdog_explores(s: RobotSession, v: float, steps: int = 40) -> list[bool]:
@@ -223,14 +227,14 @@ def test_the_approach_must_be_the_last_move_before_arriving() -> None:
     for i in GRAPH.edges[0].image_ids[:8]:  # most of the way along A -> B
         t += 0.5
         s.step(scene(int(i)), timestamp=t, v=0.3)
-    assert task.approached and task.state == "underway"
+    assert dock(s).approach.done and task.state == "underway"
     # then it finds itself somewhere else (carried onto B -> C) and has to look round
     kinds = []
     for i in GRAPH.edges[2].image_ids[:4]:
         t += 0.5
         kinds.append(s.step(scene(int(i)), timestamp=t, v=0.0).command.action.kind)
     assert any(k not in (ActionKind.NAVIGATE, ActionKind.DO_NOTHING) for k in kinds)
-    assert not task.approached and task.approach_s == 0.0
+    assert not dock(s).approach.done and dock(s).approach.seconds == 0.0
 
 
 def _come_in_to_b(
@@ -336,9 +340,11 @@ def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() 
     feats = [extract(scene(int(i))) for i in graph.image_ids]
     rt = TourRuntime(graph, feats, NavigationParams())
     assert rt.arrival == (6,)
-    s = RobotSession("rover", rt)
+    docking = Docking(rt, B)
     turned = scene(int(ab.image_ids[8]))  # the view once the guide had turned
-    target, fit = s._place_view(0, DockFrame(turned, extract(turned), rt.params))
+    ends = docking._edge_ends(0)
+    views = match_views(rt, turned, extract(turned), ViewRequest(zoomed=frozenset(ends)))
+    target, fit = docking._best(views, ends)
     assert target == rt.edge_image(0, 8)
     assert fit is not None and fit.scale == pytest.approx(1.0, abs=0.01)
 
@@ -357,12 +363,16 @@ def test_a_robot_facing_the_way_out_drives_on_instead_of_replaying_the_taught_tu
     feats = [extract(scene(int(i))) for i in graph.image_ids]
     rt = TourRuntime(graph, feats, NavigationParams())
     assert rt.departure == (4,)
-    s = RobotSession("rover", rt)
+
+    def follow(k: int, image: np.ndarray) -> Command:
+        views = match_views(rt, image, extract(image), follow_views(rt, 0, k))
+        return follow_command(rt, views, 0, k, "follow")
+
     # facing the way out: drives on from the departure, homing on the image after it
-    c = s._follow(0, 2, extract(scene(int(ab.image_ids[4]))))
+    c = follow(2, scene(int(ab.image_ids[4])))
     assert c.v > 0 and c.target_image == rt.edge_image(0, 5)
     # facing elsewhere (the start of the turn): the taught turn is replayed
-    c = s._follow(0, 1, extract(scene(int(ab.image_ids[0]))))
+    c = follow(1, scene(int(ab.image_ids[0])))
     assert c.v == 0 and c.w > 0 and c.target_image == rt.edge_image(0, 1)
 
 
@@ -388,7 +398,7 @@ def _stand_near_b(
     task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
     s.start_task(task)
     if came_in_on is not None:
-        task.approached, task.approach_edge = True, came_in_on
+        dock(s).approach.done, dock(s).approach.edge = True, came_in_on
     commands: list[Command] = []
     t = 0.0
     for _ in range(steps):
@@ -415,7 +425,7 @@ def test_a_robot_off_the_spot_in_the_goal_room_docks_on_two_axes_and_arrives() -
     s = session()
     task, commands, (x, y, _) = _stand_near_b(s, -0.3, 0.25, 0.3)
     assert task.state == "arrived"
-    assert task.place_phase == "done" and task.place_axes == 2
+    assert dock(s).placing.phase == "done" and dock(s).placing.axes == 2
     # it crept (as far as the belief goes, on the spot: no round trip along an edge) ...
     creeping = [c for c in commands if c.v != 0]
     assert creeping and all(c.action.kind == ActionKind.DO_NOTHING for c in creeping)
@@ -426,22 +436,23 @@ def test_a_robot_off_the_spot_in_the_goal_room_docks_on_two_axes_and_arrives() -
 def test_docking_after_an_edge_settles_a_second_axis_on_the_spin_images() -> None:
     # came in along A -> B facing along x, 0.25 m short and 0.3 m to the side of the place:
     # docking along the view fixes x, the quarter turn and the spin image there fix y
-    task, commands, (x, y, _) = _stand_near_b(session(), -0.25, 0.3, 0.0, came_in_on=0)
-    assert task.state == "arrived" and task.second_axis and task.place_phase == "done"
+    s = session()
+    task, commands, (x, y, _) = _stand_near_b(s, -0.25, 0.3, 0.0, came_in_on=0)
+    assert task.state == "arrived" and dock(s).placing.second_axis
+    assert dock(s).placing.phase == "done"
     assert np.hypot(x, y) < 0.15, (x, y)
     assert {c.behaviour for c in commands} >= {"dock", "place-dock"}
     # one axis only: the sideways 0.3 m stay
-    task, _, (x, y, _) = _stand_near_b(
-        session(dock_second_axis=False), -0.25, 0.3, 0.0, came_in_on=0
-    )
-    assert task.state == "arrived" and not task.second_axis
+    s = session(dock_second_axis=False)
+    task, _, (x, y, _) = _stand_near_b(s, -0.25, 0.3, 0.0, came_in_on=0)
+    assert task.state == "arrived" and not dock(s).placing.second_axis
     assert abs(x) < 0.12 and abs(y - 0.3) < 0.05, (x, y)
 
 
 def test_without_place_docking_the_robot_leaves_by_the_round_trip() -> None:
     s = session(place_dock=False)
     task, commands, _ = _stand_near_b(s, -0.3, 0.25, 0.3, steps=60)
-    assert task.state == "underway" and task.place_phase == "idle"
+    assert task.state == "underway" and dock(s).placing.phase == "idle"
     kinds = {c.action.kind for c in commands}
     assert kinds & {ActionKind.ROTATE_AND_FIND_EDGE, ActionKind.NAVIGATE}
 
@@ -449,7 +460,7 @@ def test_without_place_docking_the_robot_leaves_by_the_round_trip() -> None:
 def test_a_look_alike_place_is_not_docked_at_but_approached_along_an_edge() -> None:
     s = session(place_dock_ambiguity=0.0)  # every place counts as a look-alike
     task, commands, _ = _stand_near_b(s, -0.3, 0.25, 0.3, steps=60)
-    assert task.place_phase == "off" and task.state == "underway"
+    assert dock(s).placing.phase == "off" and task.state == "underway"
     assert any(c.action.kind != ActionKind.DO_NOTHING for c in commands)
 
 
@@ -461,7 +472,7 @@ def test_a_place_with_nothing_to_dock_on_falls_back_to_the_round_trip() -> None:
     phases = []
     for i in range(400):
         rec = s.step(blurred[i % 4], timestamp=0.1 * (i + 1), v=rec_v(s), w=rec_w(s))
-        phases.append(task.place_phase)
+        phases.append(dock(s).placing.phase)
     assert "look" in phases and phases[-1] == "off"
     turned = 2 * np.pi * NavigationParams().place_dock_turns
     assert phases.count("look") * 0.1 * NavigationParams().motion.spin_w >= turned - 0.1
@@ -500,11 +511,11 @@ def _dock_then_see_c(s: RobotSession, steps: int = 400) -> tuple[int, int]:
     s.start_task(task)
     switched, gave_up = -1, -1
     for i in range(steps):
-        if switched < 0 and task.place_phase != "idle":
+        if switched < 0 and dock(s).placing.phase != "idle":
             switched = i
         frame = spin_image(B, i % 4) if switched < 0 else spin_image(C, i % 4)
         s.step(frame, timestamp=0.1 * (i + 1), v=0.0, w=rec_w(s))
-        if task.place_phase == "off":
+        if dock(s).placing.phase == "off":
             gave_up = i
             break
     return switched, gave_up
@@ -532,7 +543,7 @@ def _approach_step(t0: float) -> int:
     for i in range(40):
         t += 0.1
         s.step(scene(int(a_to_b[min(i // 4, 9)])), timestamp=t, v=0.3)
-        if task.approached:
+        if dock(s).approach.done:
             return i
     return -1
 

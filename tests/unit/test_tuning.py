@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.session import NavigationParams
+from server.navigation import NavigationParams
 from server.tuning import tuned
 
 

@@ -18,7 +18,7 @@ from pydantic import SecretStr
 
 from server import schemas
 from server.services.container import Services
-from web.dashboard import NONE, Dashboard
+from web.dashboard import BEHAVIOUR_COLOURS, NONE, Dashboard
 from web.publisher import Publisher
 
 
@@ -110,6 +110,11 @@ def test_go_streams_and_stop_through_the_navigation_service(
     assert "Task 1 to **c**: **underway**" in c.status.content
     assert "**Action:" in c.action.content and "Entropy" in c.action.content
     assert f"({snap.step.behaviour})" in c.action.content  # what the motion layer is doing
+    assert f"Why: {snap.step.reason}" in c.action.content and snap.step.reason
+    # the task's behaviours over time: one segment so far, drawn in its colour
+    assert [seg.behaviour for seg in snap.timeline] == [snap.step.behaviour]
+    colour = BEHAVIOUR_COLOURS[snap.step.behaviour]
+    assert (c.strip.image[5, 5] == colour).all() and (c.strip.image[5, -5] == colour).all()
     assert "Vote mass" in c.votes.content
     assert not np.array_equal(before, c.images.image)  # camera | best match were drawn
     assert len(c.over_time.data[0]) == 3

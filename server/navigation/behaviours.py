@@ -1,0 +1,395 @@
+"""The motion behaviours: each a small class with its own state, born with a task.
+
+Every frame each behaviour first says which views of the frame it needs (``wants``) and then,
+from the frozen :class:`~server.navigation.observation.Observation` alone, proposes a command
+with its reason, or nothing (``propose``). It may also announce events (``events``) that every
+behaviour sees on the next frame in ``Observation.previous``: that is the only way behaviours
+learn of each other. None reads or writes another's state; the arbiter
+(:mod:`server.navigation.arbiter`) picks one proposal. Docking, which also owns the approach
+into the goal, lives in :mod:`server.navigation.docking`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from server.belief.model import Action, ActionKind
+from server.motion import explore_command, navigate_command, open_side, rotate_command
+from server.navigation.command import Command, Proposal
+from server.navigation.observation import Observation, ViewRequest, Views, elapsed
+from server.navigation.runtime import TourRuntime
+
+
+class Behaviour(Protocol):
+    """A motion behaviour. ``name`` is its place in the arbiter's precedence."""
+
+    name: str
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        """The views of this frame :meth:`propose` will read (``obs.views`` is empty here)."""
+        ...
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        """A command and its reason, or ``None``; updates this behaviour's own state only."""
+        ...
+
+    def events(self) -> frozenset[str]:
+        """Events of this frame for the others to see on the next one."""
+        ...
+
+
+NOTHING = ViewRequest()
+
+
+# -- following an edge ------------------------------------------------------------------------
+
+
+def follow_views(rt: TourRuntime, edge: int, k: int) -> ViewRequest:
+    """The views :func:`follow_command` reads for image ``k`` of ``edge``."""
+    e = rt.graph.edges[edge]
+    k = int(np.clip(k, 0, e.n_images - 1))
+    dep = rt.departure[edge]
+    offsets = {rt.edge_image(edge, k)}
+    scales: set[int] = set()
+    if 0 < dep < e.n_images - 1 and k <= dep:
+        scales.add(rt.edge_image(edge, dep))
+        offsets.add(rt.edge_image(edge, dep + 1))
+    return ViewRequest(offsets=frozenset(offsets), scales=frozenset(scales))
+
+
+def follow_command(rt: TourRuntime, views: Views, edge: int, k: int, behaviour: str) -> Command:
+    """Visual homing on image ``k`` of ``edge`` (Navigate).
+
+    Before the image where the taught robot set off (``TourRuntime.departure``: it turned on
+    the spot to face the way out until there) the taught turn is replayed only while the view
+    where it set off is not in sight: a frame that matches it (a consensus scale fit of
+    ``dock_min_inliers`` within ``MotionParams.toward_offset``) drives on from there. Facing the
+    way out from a little further on, the view looks like the end of that turn, and replaying
+    the turn spun the robot away from the door it stood at."""
+    p = rt.params
+    mp = p.motion
+    e = rt.graph.edges[edge]
+    k = int(np.clip(k, 0, e.n_images - 1))
+    dep = rt.departure[edge]
+    if 0 < dep < e.n_images - 1 and k <= dep:
+        out = views.scale(rt.edge_image(edge, dep))
+        if out is not None and (
+            out.inliers >= p.dock_min_inliers and abs(out.offset) <= mp.toward_offset
+        ):
+            k = dep + 1
+    target = rt.edge_image(edge, k)
+    # a pause while teaching is not repeated (standing still would freeze the belief); the
+    # motion replayed is that of the next image that moves. None left: the edge ends.
+    moving = rt.moving_from(edge, k)
+    if moving is None:
+        return Command(0.0, 0.0, Action.navigate(edge), target, behaviour)
+    homing = views.offset(target)
+    offset = None if homing is None else float(homing.offset)
+    v, w = navigate_command(
+        offset, taught_v=float(e.v[moving]), taught_w=float(e.w[moving]), params=mp
+    )
+    return Command(v, w, Action.navigate(edge), target, behaviour)
+
+
+class Follow:
+    """Navigate: home along the active edge on the image after the most likely one."""
+
+    name = "follow"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.rt = runtime
+
+    def _target(self, obs: Observation) -> tuple[int, int] | None:
+        d = obs.decision
+        if d.action.kind != ActionKind.NAVIGATE or d.active_edge is None:
+            return None
+        return d.active_edge, d.target_image if d.target_image is not None else 0
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        target = self._target(obs)
+        return NOTHING if target is None else follow_views(self.rt, *target)
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        target = self._target(obs)
+        if target is None:
+            return None
+        edge, k = target
+        return Proposal(follow_command(self.rt, obs.views, edge, k, "follow"), "Navigate")
+
+    def events(self) -> frozenset[str]:
+        return frozenset()
+
+
+# -- finding an edge ----------------------------------------------------------------------------
+
+
+class FindEdge:
+    """RotateAndFindEdge: spin until the view lines up with an image of the edge, then drive
+    onto the edge from there (reported as Navigate, so the belief follows onto it) and keep
+    going while the frames still match the edge. After ``find_turns`` full turns without
+    finding it, the start of the edge is not in sight from here: explore toward open space for
+    ``unstick_s`` (labelled ``unstick``), then search afresh (001 7.1).
+
+    From a location the sought images are those around where the taught robot began to move
+    forward (not the turn on the spot before it: the spin itself finds the heading); turning
+    back on an edge, anywhere along the reverse edge. It forgets its search whenever the policy
+    stops asking for it, and after an :class:`Unstick` (which moved the robot elsewhere).
+    """
+
+    name = "find-edge"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.rt = runtime
+        self.leaving: tuple[int, int, int] | None = None  # edge, image along it, misses
+        self.searched_rad = 0.0  # turned while searching without finding the edge
+        self.explore_until: float | None = None  # robot time the fruitless-turn explore ends
+
+    def _edge(self, obs: Observation) -> int | None:
+        a = obs.decision.action
+        return a.edge if a.kind == ActionKind.ROTATE_AND_FIND_EDGE else None
+
+    def _leave(self, obs: Observation, edge: int) -> tuple[int, int] | None:
+        """Where the robot driving onto ``edge`` is now (image, misses), or ``None`` when it is
+        not, or has lost the edge."""
+        if self.leaving is None or self.leaving[0] != edge:
+            return None
+        rt, mp = self.rt, self.rt.params.motion
+        _, k, misses = self.leaving
+        window = [rt.edge_image(edge, j) for j in range(k - 2, k + 8)]
+        best = int(np.argmax(obs.similarity.image[window]))
+        if float(obs.similarity.image[window[best]]) < mp.lost_similarity:
+            misses += 1
+        else:
+            k, misses = max(k, k - 2 + best), 0
+        if misses < mp.lost_steps and k < rt.graph.edges[edge].n_images - 1:
+            return k, misses
+        return None
+
+    def _sought(self, obs: Observation, edge: int) -> tuple[int, int]:
+        """The best-matching sought image of ``edge``: (index along it, canonical index)."""
+        rt = self.rt
+        last = rt.graph.edges[edge].n_images - 1
+        at_location = obs.summary.map_state < rt.graph.n_locations
+        dep = rt.departure[edge]
+        lo, hi = (max(0, dep - 1), dep + 4) if at_location else (0, last)
+        window = [rt.edge_image(edge, j) for j in range(lo, min(hi, last) + 1)]
+        best = lo + int(np.argmax(obs.similarity.image[window]))
+        return best, rt.edge_image(edge, best)
+
+    def _forget(self) -> None:
+        self.leaving, self.searched_rad, self.explore_until = None, 0.0, None
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        edge = self._edge(obs)
+        if edge is None or self._exploring(obs):
+            return NOTHING
+        leave = None if self._unstuck(obs) else self._leave(obs, edge)
+        if leave is not None:
+            return follow_views(self.rt, edge, leave[0] + 1)
+        _, target = self._sought(obs, edge)
+        return ViewRequest(offsets=frozenset({target})) | follow_views(
+            self.rt, edge, self._sought(obs, edge)[0] + 1
+        )
+
+    def _unstuck(self, obs: Observation) -> bool:
+        """Whether an :class:`Unstick` ran on the last frame (the robot went elsewhere)."""
+        return obs.previous is not None and "unsticking" in obs.previous.events
+
+    def _exploring(self, obs: Observation) -> bool:
+        return self.explore_until is not None and elapsed(self.explore_until, obs.t) > 0
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        if self._unstuck(obs):
+            self.leaving, self.searched_rad = None, 0.0
+        if self._exploring(obs):
+            return self._explore(obs)
+        if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
+            self._forget()
+            return None
+        edge = obs.decision.action.edge
+        if edge is None:
+            return None
+        if self.explore_until is not None:  # explored after a fruitless turn: search afresh
+            self.explore_until, self.searched_rad = None, 0.0
+        leave = self._leave(obs, edge)
+        if leave is not None:
+            k, misses = leave
+            self.leaving, self.searched_rad = (edge, k, misses), 0.0
+            command = follow_command(self.rt, obs.views, edge, k + 1, "leave")
+            return Proposal(command, "driving onto the edge it found")
+        self.leaving = None
+        command, why = self._search(obs, edge)
+        if command.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
+            return Proposal(command, why)  # found: driving onto it
+        self.searched_rad += abs(command.w) * obs.dt
+        if self.searched_rad >= 2 * np.pi * self.rt.params.motion.find_turns:
+            self.explore_until = obs.t + self.rt.params.motion.unstick_s
+            return self._explore(obs)
+        return Proposal(command, why)
+
+    def _search(self, obs: Observation, edge: int) -> tuple[Command, str]:
+        rt, mp = self.rt, self.rt.params.motion
+        best, target = self._sought(obs, edge)
+        last = rt.graph.edges[edge].n_images - 1
+        view = float(obs.similarity.image[target])
+        homing = obs.views.offset(target)
+        # a view where the edge ends leaves nothing to drive onto: spinning on lets the
+        # belief move (reporting Navigate would not take it off the reverse edge)
+        ends_here = rt.moving_from(edge, min(best + 1, last)) is None
+        if homing is not None and view >= mp.found_similarity and not ends_here:
+            if abs(homing.offset) <= mp.found_offset:
+                self.leaving = (edge, best, 0)
+                found = follow_command(rt, obs.views, edge, best + 1, "leave")
+                return found, "lined up with the edge's departure view"
+            if homing.n_matches >= mp.toward_matches and abs(homing.offset) <= mp.toward_offset:
+                turn = rotate_command(mp, toward=float(homing.offset))
+                return Command(*turn, Action.rotate(edge), target, "search"), "turning toward it"
+        spin = Command(*rotate_command(mp), Action.rotate(edge), target, "search")
+        return spin, "looking for the edge"
+
+    def _explore(self, obs: Observation) -> Proposal:
+        mp = self.rt.params.motion
+        command = Command(*explore_command(obs.depth, mp), Action.explore(), None, "unstick")
+        return Proposal(command, f"{mp.find_turns} turns without finding the edge")
+
+    def events(self) -> frozenset[str]:
+        return frozenset()
+
+
+# -- exploring, standing -----------------------------------------------------------------------
+
+
+class Explore:
+    """Explore: head for open space (the belief is too flat to vote for anything else)."""
+
+    name = "explore"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.mp = runtime.params.motion
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        if obs.decision.action.kind != ActionKind.EXPLORE:
+            return None
+        action = obs.decision.action
+        command = Command(*explore_command(obs.depth, self.mp), action, None, "explore")
+        return Proposal(command, "no confident position")
+
+    def events(self) -> frozenset[str]:
+        return frozenset()
+
+
+class Stand:
+    """The policy's action with no motion: DoNothing at the goal, or nothing else applies."""
+
+    name = "stand"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        pass
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        return Proposal(Command(0.0, 0.0, obs.decision.action), obs.decision.action.kind.value)
+
+    def events(self) -> frozenset[str]:
+        return frozenset()
+
+
+# -- getting free ------------------------------------------------------------------------------
+
+
+class Unstick:
+    """Stall watchdog: a robot that has driven less than ``stall_m`` (by its reported speed) in
+    ``stall_s`` of robot time is stuck, whatever the reason (pressed against a wall beside a door
+    it is homing at, a search that keeps almost finding its edge): it explores toward open space
+    for ``MotionParams.unstick_s``, whatever the policy says, and then carries on. Turning on the
+    spot on purpose (place docking) and backing off are not being stuck: the window restarts."""
+
+    name = "unstick"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.p = runtime.params
+        self.since: float | None = None  # robot time the current window began
+        self.driven = 0.0  # metres driven in it (as reported)
+        self.until: float | None = None
+        self._active = False
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        p = self.p
+        if obs.previous is not None and obs.previous.events & {"bumped", "docking on purpose"}:
+            self.since = None
+        self._active = False
+        if p.stall_s > 0:
+            if self.since is None:
+                self.since, self.driven = obs.t, 0.0
+            self.driven += abs(obs.v) * obs.dt
+            if self.driven >= p.stall_m:
+                self.since, self.driven = obs.t, 0.0
+            elif elapsed(obs.t, self.since) >= p.stall_s:
+                self.until = obs.t + p.motion.unstick_s
+                self.since, self.driven = obs.t, 0.0
+        if self.until is None or elapsed(self.until, obs.t) <= 0:
+            return None
+        self._active = True
+        command = Command(*explore_command(obs.depth, p.motion), Action.explore(), None, "unstick")
+        return Proposal(command, f"less than {p.stall_m} m in {p.stall_s:.0f} s")
+
+    def events(self) -> frozenset[str]:
+        return frozenset({"unsticking"}) if self._active else frozenset()
+
+
+class Backoff:
+    """Bump reflex: a robot told to drive forward that reports less than ``bump_fraction`` of
+    the commanded speed for ``bump_s`` is pressed against something its depth profile does not
+    show (a chair's corner beside its field of view); it backs off (``MotionParams.backoff_v``
+    for ``backoff_s``) turning toward the more open side, then carries on."""
+
+    name = "backoff"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.p = runtime.params
+        self.bumped_s = 0.0  # robot seconds driven against something
+        self.until: float | None = None
+        self.turn = 0.0
+        self._fired = False
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        p, mp = self.p, self.p.motion
+        self._fired = False
+        last = None if obs.previous is None else obs.previous.command
+        if self.until is not None:
+            if elapsed(self.until, obs.t) > 0:
+                return self._back("backing off")
+            self.until = None
+        if p.bump_s <= 0 or last is None or last.v < mp.min_v / 2:
+            self.bumped_s = 0.0
+            return None
+        pressed = obs.v < p.bump_fraction * last.v
+        self.bumped_s = self.bumped_s + obs.dt if pressed else 0.0
+        if self.bumped_s < p.bump_s:
+            return None
+        # back away turning toward the more open side, so the next try comes in at an angle
+        self.bumped_s = 0.0
+        self.until = obs.t + mp.backoff_s
+        self.turn = mp.spin_w * open_side(obs.depth, mp)
+        self._fired = True
+        return self._back(f"no progress for {p.bump_s} s while driving forward")
+
+    def _back(self, why: str) -> Proposal:
+        command = Command(-self.p.motion.backoff_v, self.turn, Action.do_nothing(), None, "backoff")
+        return Proposal(command, why)
+
+    def events(self) -> frozenset[str]:
+        return frozenset({"bumped"}) if self._fired else frozenset()

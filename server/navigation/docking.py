@@ -1,0 +1,337 @@
+"""Docking at the goal, and the approach into it that says when to dock.
+
+One behaviour with one state, because its parts hand over to each other:
+
+* the approach (``NavigationParams.approach_s``): robot time spent following a taught edge into
+  the goal, as the robot's last move; it is counted from the motion the arbiter chose this frame
+  (:meth:`Docking.track`);
+* place docking (``place_dock``, :meth:`Docking.place`): a robot whose belief is at the goal
+  before it came in along an edge docks on the goal's own spin images, on two axes (look for
+  one, creep along it until the scale agrees, turn a quarter turn, again), then counts as
+  approached;
+* docking along the edge (``dock``, :meth:`Docking.confirm`): once the belief has arrived after
+  an approach, the view has the last word: it creeps on or backs up until the scale of the
+  edge's last views agrees, then (``dock_second_axis``) turns a quarter turn and place-docks a
+  second axis.
+
+The arbiter asks :meth:`place` among the motion behaviours and :meth:`confirm` last.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from server.belief.model import Action, ActionKind
+from server.motion import navigate_command, rotate_command
+from server.navigation.command import Command, Proposal
+from server.navigation.observation import Observation, ViewRequest, Views
+from server.navigation.runtime import TourRuntime
+from server.vision.homing import ScaleResult
+
+
+@dataclass
+class Approach:
+    """How the robot has been coming into the goal."""
+
+    seconds: float = 0.0  # robot time following a taught edge into the goal
+    done: bool = False  # for approach_s, as its last move (or no approach is needed)
+    edge: int | None = None  # the edge of that approach
+    dock_m: float = 0.0  # metres of docking moves commanded since the approach began
+    log_scales: list[float] = field(default_factory=list)  # docking's last few log scales
+
+
+@dataclass
+class PlaceDocking:
+    """Docking on the goal's spin images: the phase (idle, look, creep, turn, done, off), axes
+    docked, the spin image docked on, radians turned and metres crept (as commanded) in this
+    phase, the last few log scales on this axis, radians turned with the belief off the goal,
+    and whether this is the second axis of docking along an edge."""
+
+    phase: str = "idle"
+    axes: int = 0
+    target: int | None = None
+    rad: float = 0.0
+    m: float = 0.0
+    log_scales: list[float] = field(default_factory=list)
+    away_rad: float = 0.0
+    second_axis: bool = False
+
+    def start(self, phase: str) -> None:
+        self.phase, self.rad, self.m = phase, 0.0, 0.0
+        self.log_scales.clear()
+
+
+class Docking:
+    """Place docking, the approach and docking along the edge, for one task's goal."""
+
+    name = "place-dock"
+
+    def __init__(self, runtime: TourRuntime, goal: int) -> None:
+        self.rt = runtime
+        self.p = runtime.params
+        self.goal = goal
+        self.needs_approach = self.p.approach_s > 0 and runtime.approachable[goal]
+        self.approach = Approach(done=not self.needs_approach)
+        self.placing = PlaceDocking()
+        self._engaged = False
+
+    # -- views -------------------------------------------------------------------------------
+
+    def _spins(self, obs: Observation, most: int = 3) -> list[int]:
+        """The goal's spin images the engine ranks highest for this frame."""
+        spins = self.rt.spin_images[self.goal]
+        ranked = spins[np.argsort(-obs.similarity.image[spins], kind="stable")[:most]]
+        return [int(i) for i in ranked]
+
+    def _edge_ends(self, edge: int, most: int = 8) -> list[int]:
+        """The images taught at the end of ``edge``: from the last one taught while moving
+        forward (where the guide may have turned to name the place), ``most`` evenly spaced."""
+        rt = self.rt
+        last = rt.graph.edges[edge].n_images - 1
+        ks = np.unique(np.linspace(rt.arrival[edge], last, most).round().astype(int))
+        return [rt.edge_image(edge, int(k)) for k in ks]
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        """Spin views while place docking may look, its target while it creeps, and the edge's
+        end views (for every edge the robot may be coming in on) when the arrival may be
+        confirmed this frame."""
+        zoomed: set[int] = set()
+        pl = self.placing
+        if (self.p.place_dock and pl.phase in ("look", "turn", "creep")) or (
+            pl.phase == "idle" and obs.at_goal
+        ):
+            zoomed.update(self._spins(obs))
+            if pl.target is not None:
+                zoomed.add(pl.target)
+        a = self.approach
+        could_arrive = a.done or a.seconds + obs.dt >= self.p.approach_s
+        if self.p.dock and obs.at_goal and not pl.second_axis and could_arrive:
+            d = obs.decision
+            for edge in {a.edge, d.active_edge, d.action.edge}:
+                if edge is not None and self.rt.graph.edges[edge].target == self.goal:
+                    zoomed.update(self._edge_ends(edge))
+            zoomed.update(self._spins(obs))
+        return ViewRequest(zoomed=frozenset(zoomed))
+
+    def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
+        """Of ``candidates``, the one the frame fits best (most inliers) and that fit; the
+        first and ``None`` when none fits."""
+        best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
+        for i in candidates:
+            fit = views.zoomed_scale(i)
+            if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
+                best = (i, fit)
+        return best
+
+    def _verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
+        """Add ``fit``'s scale to ``log_scales`` (the last three are kept) and say from their
+        median whether the robot stands short of the view (``(True, False)``), past it
+        (``(False, True)``) or within ``dock_scale_tol`` of it (``(False, False)``)."""
+        log_scales.append(float(np.log(fit.scale)))
+        del log_scales[:-3]
+        log_scale = float(np.median(log_scales))
+        tol = self.p.dock_scale_tol
+        return log_scale > np.log1p(tol), log_scale < np.log1p(-tol)
+
+    # -- place docking -----------------------------------------------------------------------
+
+    def place(self, obs: Observation) -> Proposal | None:
+        """Docking on the goal's own spin images (reported as DoNothing: the robot turns and
+        creeps on the spot as far as the belief is concerned), or ``None``."""
+        self._engaged = False
+        pl = self.placing
+        if not self._placing(obs):
+            return None
+        self._engaged = True  # turning on the spot on purpose is not being stuck
+        if pl.phase == "turn":
+            if pl.rad < np.pi / 2:
+                return self._turn("turning a quarter turn to dock a second axis")
+            pl.start("look")
+        if pl.phase == "look":
+            looked = self._look(obs)
+            if looked is not None or pl.phase == "off":
+                return looked
+        return self._creep(obs)
+
+    def _placing(self, obs: Observation) -> bool:
+        """Whether place docking goes on (or starts) this frame: off when it is switched off,
+        done, given up, not needed (the robot came in along an edge) or turned away."""
+        pl, p = self.placing, self.p
+        if not p.place_dock or pl.phase in ("done", "off"):
+            return False
+        if self.approach.done and pl.phase == "idle":
+            return False  # came in along an edge: docking proper (and its second axis) decides
+        if pl.phase != "idle":
+            return not self._turned_away(obs)
+        if not (self.needs_approach and obs.at_goal):
+            return False
+        if (obs.goal_ambiguity or 0.0) > p.place_dock_ambiguity:
+            pl.phase = "off"  # a look-alike place: come in along an edge
+            return False
+        pl.start("look")
+        return True
+
+    def _turned_away(self, obs: Observation) -> bool:
+        """Count what the last command turned and crept; give up (``off``) once it has turned
+        ``place_dock_away`` with the belief off the goal. At the place its spin images show all
+        round; a turn that mostly sees elsewhere says a look-alike view started the docking."""
+        pl, last = self.placing, None if obs.previous is None else obs.previous.command
+        if last is None:
+            return False
+        pl.rad += abs(last.w) * obs.dt
+        pl.m += abs(last.v) * obs.dt
+        if not obs.at_goal:
+            pl.away_rad += abs(last.w) * obs.dt
+            if pl.away_rad > self.p.place_dock_away:
+                pl.phase = "off"
+                return True
+        return False
+
+    def _turn(self, why: str) -> Proposal:
+        command = Command(*rotate_command(self.p.motion), Action.do_nothing(), None, "place-dock")
+        return Proposal(command, why)
+
+    def _look(self, obs: Observation) -> Proposal | None:
+        """Turn until a spin image is in view and lined up; ``None`` once it is (creep on)."""
+        pl, p, mp = self.placing, self.p, self.p.motion
+        target, fit = self._best(obs.views, self._spins(obs))
+        seen = fit is not None and fit.inliers >= p.dock_min_inliers
+        if fit is None or not seen or abs(fit.offset) > mp.toward_offset:
+            if pl.rad >= 2 * np.pi * p.place_dock_turns:
+                pl.phase = "off"  # nothing to dock on: the round trip takes over
+                return None
+            if fit is not None and seen:  # in sight: turn toward it, slowing down
+                toward = rotate_command(mp, toward=fit.offset)
+                return Proposal(
+                    Command(*toward, Action.do_nothing(), None, "place-dock"), "turning toward it"
+                )
+            return self._turn("looking for one of the place's views")
+        pl.start("creep")
+        pl.target = target
+        return None
+
+    def _creep(self, obs: Observation) -> Proposal:
+        """Creep along the spin image docked on until the scale agrees (three fits in a row)."""
+        pl, p, mp = self.placing, self.p, self.p.motion
+        target = int(pl.target if pl.target is not None else 0)
+        fit = obs.views.zoomed_scale(target)
+        if fit is None or fit.inliers < p.dock_min_inliers:
+            pl.phase = "look"  # lost the view; the turning budget goes on
+            return self._turn("lost the view; looking again")
+        short, past = self._verdict(pl.log_scales, fit)
+        settled = not (short or (past and p.dock_reverse))
+        if settled and len(pl.log_scales) < 3 and pl.m < p.dock_max_m:
+            # one fit may be off (parallax at close range): hold still until three agree
+            hold = Command(0.0, 0.0, Action.do_nothing(), target, "place-dock")
+            return Proposal(hold, "holding still until three views agree")
+        if pl.m >= p.dock_max_m or settled:
+            pl.axes += 1
+            if pl.axes >= 2:
+                pl.phase = "done"
+                self.approach.done, self.approach.edge = True, None
+                return Proposal(Command(0.0, 0.0, Action.do_nothing()), "docked on two axes")
+            pl.start("turn")
+            return self._turn("one axis docked; a quarter turn to the next")
+        _, w = navigate_command(fit.offset, taught_v=0.0, taught_w=0.0, params=mp)
+        v = mp.dock_v if short else -mp.dock_v
+        command = Command(v, w, Action.do_nothing(), target, "place-dock")
+        return Proposal(
+            command,
+            "creeping on: the view looks smaller than taught"
+            if short
+            else "backing up: the view looks larger than taught",
+        )
+
+    # -- the approach --------------------------------------------------------------------------
+
+    def track(self, command: Command, dt: float) -> None:
+        """Count the robot time spent following a taught edge into the goal (``approach_s``);
+        any other move but standing still starts the count again (the approach must be the
+        robot's last move: one that turned or explored since may have lost its place)."""
+        a = self.approach
+        edge, kind = command.action.edge, command.action.kind
+        if (
+            kind == ActionKind.NAVIGATE
+            and edge is not None
+            and (self.rt.graph.edges[edge].target == self.goal)
+        ):
+            if edge != a.edge:
+                a.edge, a.dock_m = edge, 0.0
+            a.seconds += dt
+            a.done = a.done or a.seconds >= self.p.approach_s
+        elif kind != ActionKind.DO_NOTHING and self.needs_approach:
+            a.seconds, a.done, a.edge, a.dock_m = 0.0, False, None, 0.0
+
+    # -- docking along the edge ----------------------------------------------------------------
+
+    def confirm(self, obs: Observation, placing: bool) -> tuple[Proposal | None, bool]:
+        """The view's word on an arrival the belief has called after an approach.
+
+        Args:
+            placing: place docking had something to say this frame (then nothing is confirmed).
+        Returns:
+            ``(proposal, there)``: a docking move (``None``: keep the motion chosen) and
+            whether the robot stands at the goal (or the view cannot tell).
+        """
+        a, p, mp = self.approach, self.p, self.p.motion
+        if placing or not (a.done and obs.at_goal):
+            a.log_scales.clear()
+            return None, False
+        if not p.dock or a.edge is None or self.placing.second_axis:
+            return None, True  # (the second axis ends in place docking's own verdict)
+        if a.log_scales:  # the last frame's command was a docking move
+            # counted as commanded, not as driven: a robot pressed against something gives up too
+            a.dock_m += mp.dock_v * obs.dt
+        target, fit = self._arrival_view(obs, a.edge)
+        if fit is None or fit.inliers < p.dock_min_inliers:
+            a.log_scales.clear()
+            turn = self._second_axis()
+            return turn, turn is None
+        return self._dock_move(a.edge, target, fit)
+
+    def _dock_move(self, edge: int, target: int, fit: ScaleResult) -> tuple[Proposal | None, bool]:
+        """Creep on, back up, or settle (then the second axis) by the scale of ``fit``."""
+        a, p, mp = self.approach, self.p, self.p.motion
+        short, past = self._verdict(a.log_scales, fit)
+        if a.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
+            a.log_scales.clear()
+            turn = self._second_axis()
+            if turn is not None:
+                return turn, False
+            return Proposal(Command(0.0, 0.0, Action.navigate(edge), target), "docked"), True
+        _, w = navigate_command(fit.offset, taught_v=0.0, taught_w=0.0, params=mp)
+        if short:
+            creep = Command(mp.dock_v, w, Action.navigate(edge), target, "dock")
+            return Proposal(creep, "stopped short: the view looks smaller than taught"), False
+        # backing up the way it came: the tracker has no backward motion, so it holds still
+        back = Command(-mp.dock_v, w, Action.do_nothing(), target, "dock")
+        return Proposal(back, "went past: the view looks larger than taught"), False
+
+    def _arrival_view(self, obs: Observation, edge: int) -> tuple[int, ScaleResult | None]:
+        """The taught view the frame fits best at the end of ``edge`` (its last images) or,
+        when none of them fits (the robot faces elsewhere), among the goal's spin images."""
+        ends = self._edge_ends(edge)
+        target, fit = self._best(obs.views, ends)
+        if fit is not None and fit.inliers >= self.p.dock_min_inliers:
+            return target, fit
+        return self._best(obs.views, self._spins(obs))
+
+    def _second_axis(self) -> Proposal | None:
+        """Start docking on the goal's spin images a quarter turn on from where docking along
+        the edge settled (``dock_second_axis``): the turn, or ``None`` when there is no second
+        axis to dock (off, already done, or no spin images)."""
+        p, pl = self.p, self.placing
+        if not (p.dock_second_axis and p.place_dock) or pl.second_axis:
+            return None
+        if len(self.rt.spin_images[self.goal]) == 0:
+            return None
+        pl.second_axis = True
+        pl.start("turn")
+        pl.axes, pl.away_rad = 1, 0.0
+        command = Command(*rotate_command(p.motion), Action.do_nothing(), None, "dock")
+        return Proposal(command, "docked along the edge; a quarter turn for the second axis")
+
+    def events(self) -> frozenset[str]:
+        return frozenset({"docking on purpose"}) if self._engaged else frozenset()

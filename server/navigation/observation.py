@@ -1,0 +1,235 @@
+"""What the robot perceives on one frame, computed once by :func:`perceive` and then frozen.
+
+``perceive`` is the only stage of a navigation step that reads the frame: features, similarities
+to the tour, the belief update, the policy's votes, and the matches of the frame against the
+taught images the behaviours asked for (:class:`ViewRequest`, from each behaviour's ``wants``).
+Behaviours then decide from the :class:`Observation` alone; none of them calls into vision.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from server.belief.model import Action
+from server.belief.tracker import BeliefSummary, Tracker
+from server.navigation.command import Command
+from server.navigation.runtime import TourRuntime
+from server.policy.voting import Decision, decide
+from server.vision.features import ImageFeatures, extract
+from server.vision.homing import (
+    HomingResult,
+    ScaleResult,
+    homing_offset,
+    homing_scale,
+    homing_scale_zoomed,
+    zoom_levels,
+)
+from server.vision.index import Similarity
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def elapsed(now: float, then: float) -> float:
+    """Robot seconds from ``then`` to ``now``, rounded to the microsecond. The difference of two
+    large timestamps carries a rounding error (~1e-13 s at 3000 s) that depends on how large the
+    robot clock has grown; thresholds reached exactly (ten frames of 0.1 s against an
+    ``approach_s`` of 1 s, 40 frames against ``unstick_s``) then fell one frame earlier or later
+    depending on the clock, and with them the course of a whole trial."""
+    return round(now - then, 6)
+
+
+@dataclass(frozen=True)
+class ViewRequest:
+    """Taught images (canonical indices) a behaviour wants the frame matched against:
+    ``offsets`` by homing (:func:`~server.vision.homing.homing_offset`), ``scales`` by a scale
+    fit (:func:`~server.vision.homing.homing_scale`), ``zoomed`` by a scale fit through the
+    frame's zoom levels (:func:`~server.vision.homing.homing_scale_zoomed`)."""
+
+    offsets: frozenset[int] = frozenset()
+    scales: frozenset[int] = frozenset()
+    zoomed: frozenset[int] = frozenset()
+
+    def __or__(self, other: ViewRequest) -> ViewRequest:
+        return ViewRequest(
+            self.offsets | other.offsets, self.scales | other.scales, self.zoomed | other.zoomed
+        )
+
+    @staticmethod
+    def union(requests: Iterable[ViewRequest]) -> ViewRequest:
+        out = ViewRequest()
+        for r in requests:
+            out = out | r
+        return out
+
+
+class ViewNotRequested(KeyError):
+    """A behaviour read a match it did not ask for in ``wants``: a bug in that behaviour."""
+
+
+@dataclass(frozen=True)
+class Views:
+    """The frame matched against taught images, as requested (``None``: nothing matched)."""
+
+    offsets: Mapping[int, HomingResult | None] = field(default_factory=dict)
+    scales: Mapping[int, ScaleResult | None] = field(default_factory=dict)
+    zoomed: Mapping[int, ScaleResult | None] = field(default_factory=dict)
+
+    def offset(self, image: int) -> HomingResult | None:
+        """Homing of the frame on taught image ``image``."""
+        _check(self.offsets, image, "offsets")
+        return self.offsets[image]
+
+    def scale(self, image: int) -> ScaleResult | None:
+        """Scale fit of the frame on taught image ``image``."""
+        _check(self.scales, image, "scales")
+        return self.scales[image]
+
+    def zoomed_scale(self, image: int) -> ScaleResult | None:
+        """Scale fit through the frame's zoom levels on taught image ``image``."""
+        _check(self.zoomed, image, "zoomed")
+        return self.zoomed[image]
+
+
+def _check(table: Mapping[int, object], image: int, kind: str) -> None:
+    if image not in table:
+        raise ViewNotRequested(f"view {kind}[{image}] was not requested in wants()")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a frame decided: the chosen command, the behaviour that won and why, every
+    behaviour's proposal (by name, ``None`` when it had nothing to say) and the events
+    behaviours announced."""
+
+    command: Command
+    winner: str
+    reason: str
+    proposals: Mapping[str, object] = field(default_factory=dict)
+    events: frozenset[str] = frozenset()
+
+    def proposed(self, name: str) -> bool:
+        return self.proposals.get(name) is not None
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One frame as the behaviours see it.
+
+    Attributes:
+        t: robot time of the frame, s. dt: robot seconds since the last frame (clipped to
+            ``max_dt_s``; 0 on a task's first frame).
+        v, w: the motion the robot reported for the last frame (odometry), m/s and rad/s.
+        depth: ``(n_rays,)`` ranges in metres left to right, or ``None`` (no depth sensor).
+        features, similarity: the frame's features and its similarities to the tour.
+        summary: the belief after this frame. decision: the policy's votes and action.
+        goal: the task's goal location. steps: frames of the task before this one.
+        at_goal: the belief puts the robot at the goal (``arrive_mass`` at the goal and the
+            images just before it, the evidence agreeing, ``arrive_min_steps`` into the task).
+        goal_ambiguity: how much the goal's spin images look like elsewhere
+            (:meth:`TourRuntime.place_ambiguity`), when ``at_goal`` (else ``None``).
+        views: the matches the behaviours asked for.
+        previous: the last frame's :class:`Outcome` (``None`` on a task's first frame).
+    """
+
+    t: float
+    dt: float
+    v: float
+    w: float
+    depth: FloatArray | None
+    features: ImageFeatures
+    similarity: Similarity
+    summary: BeliefSummary
+    decision: Decision
+    goal: int
+    steps: int
+    at_goal: bool
+    goal_ambiguity: float | None
+    views: Views
+    previous: Outcome | None
+
+
+@dataclass(frozen=True)
+class Frame:
+    """What the robot sends: the image, its robot timestamp (s), its odometry (m/s, rad/s)
+    and its depth profile (metres, left to right; ``None`` without a sensor)."""
+
+    image: npt.NDArray[np.uint8]
+    timestamp: float
+    v: float
+    w: float = 0.0
+    depth: FloatArray | None = None
+
+
+def perceive(
+    runtime: TourRuntime,
+    tracker: Tracker,
+    frame: Frame,
+    *,
+    last_action: Action,
+    dt: float,
+    goal: int,
+    steps: int,
+    hold_goal: bool,
+    previous: Outcome | None,
+    wants: Callable[[Observation], ViewRequest],
+) -> Observation:
+    """Features, similarities, the belief update, the policy's votes, then the views asked for.
+
+    Args:
+        tracker: the robot's belief tracker; stepped once (its belief changes).
+        last_action: the action executed since the last frame (the belief's prediction).
+        dt: robot seconds since the last frame. goal, steps: the task's goal and frames so far.
+        hold_goal: the goal votes to leave by its round trip (not yet approached).
+        previous: the last frame's outcome.
+        wants: given the observation without views, the views the behaviours need.
+    """
+    p = runtime.params
+    features = extract(frame.image, p.features)
+    similarity, likelihood = runtime.observe(features)
+    summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt)
+    decision = decide(
+        runtime.graph, summary.belief, goal, runtime.costs(goal), p.policy, hold_goal=hold_goal
+    )
+    mass = float(summary.belief[runtime.at_location[goal]].sum())
+    agrees = summary.evidence >= p.tracker.localised_evidence
+    at_goal = mass >= p.arrive_mass and agrees and steps + 1 >= p.arrive_min_steps
+    seen = Observation(
+        t=frame.timestamp,
+        dt=dt,
+        v=frame.v,
+        w=frame.w,
+        depth=frame.depth,
+        features=features,
+        similarity=similarity,
+        summary=summary,
+        decision=decision,
+        goal=goal,
+        steps=steps,
+        at_goal=at_goal,
+        goal_ambiguity=runtime.place_ambiguity(goal) if at_goal else None,
+        views=Views(),
+        previous=previous,
+    )
+    return replace(seen, views=match_views(runtime, frame.image, features, wants(seen)))
+
+
+def match_views(
+    runtime: TourRuntime,
+    image: npt.NDArray[np.uint8],
+    features: ImageFeatures,
+    request: ViewRequest,
+) -> Views:
+    """The frame matched against every requested taught image (zoom levels made only when a
+    zoomed fit is asked for)."""
+    taught = runtime.features
+    p = runtime.params
+    levels = zoom_levels(image, features, p.dock_zooms, p.features) if request.zoomed else ()
+    return Views(
+        offsets={i: homing_offset(features, taught[i]) for i in sorted(request.offsets)},
+        scales={i: homing_scale(features, taught[i]) for i in sorted(request.scales)},
+        zoomed={i: homing_scale_zoomed(levels, taught[i]) for i in sorted(request.zoomed)},
+    )

@@ -1,0 +1,176 @@
+"""What the core derives from one snapshot of a tour, shared by every robot navigating it."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+import numpy as np
+import numpy.typing as npt
+
+from server.belief.model import BeliefModel, build_model
+from server.belief.tracker import fine_likelihood
+from server.domain import TourGraph
+from server.navigation.params import NavigationParams
+from server.policy.costs import cost_to_goal
+from server.vision.features import ImageFeatures
+from server.vision.index import Similarity, TourIndex
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class TourRuntime:
+    """What the core derives from one snapshot of a tour. Immutable once built; shared by every
+    robot navigating the tour."""
+
+    def __init__(
+        self,
+        graph: TourGraph,
+        features: Sequence[ImageFeatures],
+        params: NavigationParams,
+        *,
+        version: int = 0,
+    ) -> None:
+        if len(features) != graph.n_images:
+            raise ValueError(f"{len(features)} features for {graph.n_images} images")
+        self.graph = graph
+        self.params = params
+        self.version = version
+        self.features = tuple(features)
+        self.index = TourIndex(params.engine)
+        if graph.n_images:
+            self.index.add(self.features, graph.image_state)
+        self.model: BeliefModel = build_model(graph, params.transitions)
+        self._costs = lru_cache(maxsize=64)(self._cost_to_goal)
+        # canonical index of edge e's first image
+        self._edge_first = graph.n_images - int(graph.edge_offsets[-1]) + graph.edge_offsets
+        # index along each edge of the image where the taught robot started to move forward
+        self.departure = tuple(_first_forward(e.v) for e in graph.edges)
+        # index along each edge of the last image taught while moving forward (the robot was
+        # at the place from there on, maybe turning to face the way the guide named it)
+        self.arrival = tuple(_last_forward(e.v) for e in graph.edges)
+        # for every edge image, the index of the first image at or after it that moves
+        self._moving = tuple(next_moving(e.v, e.w) for e in graph.edges)
+        self.at_location = _at_locations(graph, self.model)
+        # locations a robot can leave and come back into along taught edges
+        ins = {e.target for e in graph.edges if e.n_images > 0}
+        outs = {e.source for e in graph.edges if e.n_images > 0}
+        self.approachable = tuple(k in ins and k in outs for k in range(graph.n_locations))
+        # canonical indices of each location's spin images (they come first, in order)
+        counts = [len(loc.image_ids) for loc in graph.locations]
+        firsts = np.cumsum([0, *counts])
+        self.spin_images = tuple(
+            np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
+        )
+        self._ambiguity: dict[int, float] = {}
+
+    def place_ambiguity(self, location: int, near_m: float = 1.0) -> float:
+        """How much the place's spin images look like elsewhere in the tour: the mean, over its
+        spin images, of the engine's best similarity (in [0, 1]) to an image taken more than
+        ``near_m`` metres from the place (by the taught speeds: every image but the place's own
+        and the ends of the edges at it). Look-alike rooms score ~0.7 in the simulated home,
+        the others 0.2-0.35. Computed on first use (one engine query per spin image)."""
+        cached = self._ambiguity.get(location)
+        if cached is not None:
+            return cached
+        g = self.graph
+        spins = self.spin_images[location]
+        if len(spins) == 0:
+            return 1.0
+        near = np.zeros(g.n_images, dtype=bool)
+        near[spins] = True
+        for j, e in enumerate(g.edges):
+            if e.n_images == 0 or location not in (e.source, e.target):
+                continue
+            along = e.metres_along()
+            mine = np.zeros(e.n_images, dtype=bool)
+            if e.source == location:
+                mine |= along <= near_m
+            if e.target == location:
+                mine |= along >= along[-1] - near_m
+            near[self._edge_first[j] + np.arange(e.n_images)] |= mine
+        if near.all():
+            return 0.0
+        best = [
+            float(self.index.query(self.features[i], n_states=g.n_states).image[~near].max())
+            for i in spins
+        ]
+        self._ambiguity[location] = out = float(np.mean(best))
+        return out
+
+    def moving_from(self, edge: int, k: int) -> int | None:
+        """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
+        when the robot stood still from ``k`` to the end)."""
+        nxt = int(self._moving[edge][k])
+        return None if nxt < 0 else nxt
+
+    def _cost_to_goal(self, goal: int) -> FloatArray:
+        return cost_to_goal(self.graph, goal, self.params.costs)
+
+    def costs(self, goal: int) -> FloatArray:
+        """``(n_locations,)`` seconds to reach location ``goal`` from every location."""
+        return self._costs(goal)
+
+    def edge_image(self, edge: int, k: int) -> int:
+        """Canonical image index of the ``k``-th image of ``edge``."""
+        n = self.graph.edges[edge].n_images
+        return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
+
+    def observe(self, features: ImageFeatures) -> tuple[Similarity, FloatArray]:
+        """Engine similarities of a frame and the ``(n_fine,)`` likelihood they give."""
+        sim = self.index.query(features, n_states=self.graph.n_states)
+        return sim, fine_likelihood(sim.image, self.graph)
+
+
+def _elapsed(now: float, then: float) -> float:
+    """Robot seconds from ``then`` to ``now``, rounded to the microsecond. The difference of two
+    large timestamps carries a rounding error (~1e-13 s at 3000 s) that depends on how large the
+    robot clock has grown; thresholds reached exactly (ten frames of 0.1 s against an
+    ``approach_s`` of 1 s, 40 frames against ``unstick_s``) then fell one frame earlier or later
+    depending on the clock, and with them the course of a whole trial."""
+    return round(now - then, 6)
+
+
+def _next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
+    """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
+    ``eps``, or -1 when none follows."""
+    n = len(v)
+    moving = (np.abs(v) > eps) | (np.abs(w) > eps)
+    idx = np.where(moving, np.arange(n), n)
+    nxt = np.minimum.accumulate(idx[::-1])[::-1]
+    return np.where(nxt < n, nxt, -1).astype(np.int64)
+
+
+def next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
+    """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
+    ``eps``, or -1 when none follows."""
+    n = len(v)
+    moving = (np.abs(v) > eps) | (np.abs(w) > eps)
+    idx = np.where(moving, np.arange(n), n)
+    nxt = np.minimum.accumulate(idx[::-1])[::-1]
+    return np.where(nxt < n, nxt, -1).astype(np.int64)
+
+
+FORWARD_V = 0.05
+"""A taught image with a forward speed above this (m/s) was taken while driving forward."""
+
+
+def _first_forward(v: FloatArray) -> int:
+    """Index of the first image taught driving forward (0 when none was)."""
+    forward = v > FORWARD_V
+    return int(np.argmax(forward)) if np.any(forward) else 0
+
+
+def _last_forward(v: FloatArray) -> int:
+    """Index of the last image taught driving forward (0 when none was)."""
+    forward = v > FORWARD_V
+    return int(len(v) - 1 - np.argmax(forward[::-1])) if np.any(forward) else 0
+
+
+def _at_locations(graph: TourGraph, model: BeliefModel) -> tuple[npt.NDArray[np.int64], ...]:
+    """Fine states physically at each location: itself and the exit zones of edges into it."""
+    at: list[list[int]] = [[k] for k in range(graph.n_locations)]
+    for j, e in enumerate(graph.edges):
+        end = graph.n_locations + int(graph.edge_offsets[j + 1])
+        at[e.target].extend(range(end - int(model.exit_len[j]), end))
+    return tuple(np.asarray(a, dtype=np.int64) for a in at)

@@ -1,0 +1,121 @@
+"""A small synthetic tour and synthetic observations, to test behaviours one at a time."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "vision"))
+from vision_testkit import scene
+
+from server.belief.model import Action, ActionKind
+from server.belief.tracker import BeliefSummary
+from server.domain import Edge, Location, TourGraph
+from server.navigation import NavigationParams, TourRuntime
+from server.navigation.command import Command
+from server.navigation.observation import Observation, Outcome, Views
+from server.policy.voting import Decision
+from server.vision.features import extract
+from server.vision.index import Similarity
+
+A, B, C, D = range(4)
+
+
+def tour() -> TourGraph:
+    """A <-> B <-> C, ten images per edge, four spin images per place; D has no edges."""
+    ids = iter(range(1000))
+    locs = tuple(Location(name, tuple(next(ids) for _ in range(4))) for name in "ABCD")
+
+    def edge(s: int, t: int) -> Edge:
+        n = 10
+        return Edge(
+            s,
+            t,
+            tuple(next(ids) for _ in range(n)),
+            np.arange(n) * 0.5,
+            np.full(n, 0.3),
+            np.zeros(n),
+        )
+
+    return TourGraph(locs, (edge(A, B), edge(B, A), edge(B, C), edge(C, B)))
+
+
+GRAPH = tour()
+FEATURES = [extract(scene(int(i))) for i in GRAPH.image_ids]
+
+
+def runtime(**changes: object) -> TourRuntime:
+    params = replace(NavigationParams(), **changes)  # type: ignore[arg-type]
+    return TourRuntime(GRAPH, FEATURES, params)
+
+
+def observation(
+    rt: TourRuntime,
+    *,
+    action: Action | None = None,
+    active_edge: int | None = None,
+    target_image: int | None = None,
+    t: float = 10.0,
+    dt: float = 0.1,
+    v: float = 0.0,
+    w: float = 0.0,
+    depth: list[float] | None = None,
+    similarity: np.ndarray | None = None,
+    map_state: int = A,
+    goal: int = B,
+    at_goal: bool = False,
+    goal_ambiguity: float | None = None,
+    views: Views | None = None,
+    previous: Outcome | None = None,
+) -> Observation:
+    """An observation with the given fields and bland defaults (every image 0.1 similar)."""
+    g = rt.graph
+    action = action if action is not None else Action.do_nothing()
+    image_sim = np.full(g.n_images, 0.1) if similarity is None else np.asarray(similarity)
+    state = np.zeros(g.n_states)
+    state[map_state] = 1.0
+    summary = BeliefSummary(
+        belief=rt.model.prior,
+        state=state,
+        row_edge=np.zeros(0, np.int64),
+        edge_offsets=np.zeros(1, np.int64),
+        top_states=((map_state, 1.0),),
+        best_image=np.zeros(g.n_edges, np.int64),
+        entropy=0.0,
+        localised=True,
+        localised_state=map_state,
+    )
+    votes = {k: float(k == action.kind) for k in ActionKind}
+    return Observation(
+        t=t,
+        dt=dt,
+        v=v,
+        w=w,
+        depth=None if depth is None else np.asarray(depth, np.float64),
+        features=FEATURES[0],
+        similarity=Similarity(
+            image=image_sim,
+            state=np.full(g.n_states, 0.1),
+            best_image=np.zeros(g.n_states, np.int64),
+            candidates=np.zeros(0, np.int64),
+            first_pass_ms=0.0,
+            second_pass_ms=0.0,
+        ),
+        summary=summary,
+        decision=Decision(action, target_image, votes, active_edge),
+        goal=goal,
+        steps=10,
+        at_goal=at_goal,
+        goal_ambiguity=goal_ambiguity,
+        views=views if views is not None else Views(),
+        previous=previous,
+    )
+
+
+def outcome(
+    command: Command, winner: str = "follow", events: frozenset[str] = frozenset()
+) -> Outcome:
+    return Outcome(command, winner, f"{winner} says so", {}, events)
