@@ -62,6 +62,11 @@ class MotionParams:
     * ``find_turns`` (1.25) and ``unstick_s`` (4 s): when RotateAndFindEdge has turned this many
       times without finding its edge, the start of the edge is not in sight from here; the
       robot explores toward open space for ``unstick_s`` and then looks again (001 7.1).
+    * ``escape_turn_s`` (6 s), ``escape_aim_rad`` (0.2) and ``escape_go_s`` (2 s): an escape,
+      after backing off, turns on the spot (at ``spin_w``) until the most open direction of the
+      depth profile is within ``escape_aim_rad`` of straight ahead and at least
+      ``avoid_start_m`` away, for at most ``escape_turn_s``, then explores that way for
+      ``escape_go_s``.
     """
 
     cruise_v: float = 0.25
@@ -90,6 +95,9 @@ class MotionParams:
     lost_steps: int = 5
     find_turns: float = 1.25
     unstick_s: float = 4.0
+    escape_turn_s: float = 6.0
+    escape_aim_rad: float = 0.2
+    escape_go_s: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0 < self.avoid_full_m < self.avoid_start_m:
@@ -149,14 +157,34 @@ def _ranges(depth: npt.ArrayLike | None) -> FloatArray | None:
     return np.where(np.isfinite(ranges), ranges, 1e3)
 
 
+def _smooth(ranges: FloatArray) -> FloatArray:
+    """Ranges averaged over an eighth of the rays: a single long ray through a gap does not win
+    over a wide open side."""
+    k = max(1, len(ranges) // 8)
+    return np.convolve(ranges, np.ones(k) / k, mode="same")
+
+
+def open_heading(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[float, float] | None:
+    """Where to turn to face open space: ``(bearing, range)``, radians (left positive) and
+    metres, of the most open direction with every ray counted up to ``open_m`` and smoothed
+    over an eighth of the rays; of directions within 5 % of the most open, the one nearest
+    straight ahead (in a wide open room: straight on). ``None`` without a profile."""
+    ranges = _ranges(depth)
+    if ranges is None:
+        return None
+    smooth = _smooth(np.minimum(ranges, params.open_m))
+    angles = ray_angles(len(ranges), params.depth_fov_deg)
+    near_best = smooth >= 0.95 * smooth.max()
+    best = int(np.argmin(np.where(near_best, np.abs(angles), np.inf)))
+    return float(angles[best]), float(smooth[best])
+
+
 def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[float, float]:
     """Head for the most open direction of the depth profile; without one, creep and turn."""
     ranges = _ranges(depth)
     if ranges is None:
         return params.explore_v, params.spin_w / 2
-    # smooth so a single long ray through a gap does not win over a wide open side
-    k = max(1, len(ranges) // 8)
-    smooth = np.convolve(ranges, np.ones(k) / k, mode="same")
+    smooth = _smooth(ranges)
     bearing = float(ray_angles(len(ranges), params.depth_fov_deg)[int(np.argmax(smooth))])
     w = float(np.clip(params.explore_gain * bearing, -params.max_w, params.max_w))
     if smooth.max() < params.avoid_start_m:  # boxed in: turn on the spot

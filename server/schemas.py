@@ -221,7 +221,7 @@ class MotionCommand(_Model):
     behaviour: str = Field(
         default="stand",
         description="What the motion layer is doing: stand, follow, leave, search, explore, "
-        "unstick, backoff, dock or place-dock (server.navigation.BEHAVIOURS).",
+        "unstick, backoff, escape, settle, dock or place-dock (server.navigation.BEHAVIOURS).",
     )
     reason: str | None = Field(
         default=None,

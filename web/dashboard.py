@@ -329,8 +329,10 @@ BEHAVIOUR_COLOURS: dict[str, tuple[int, int, int]] = {
     "explore": (168, 85, 247),
     "unstick": (220, 38, 38),
     "backoff": (249, 115, 22),
+    "escape": (190, 24, 93),
     "dock": (22, 163, 74),
     "place-dock": (132, 204, 22),
+    "settle": (13, 148, 136),
     "stand": (148, 163, 184),
 }
 """RGB colour of each behaviour in the dashboard's strip (server.navigation.BEHAVIOURS)."""

@@ -6,8 +6,10 @@ The first behaviour in :data:`PRECEDENCE` that proposes something wins (subsumpt
 behaviour      proposes when
 =============  ==========================================================================
 ``backoff``    it has been pressed against something while told to drive (bump reflex)
+``escape``     the winner wanted to drive forward for ``escape_s`` and the robot did not move
 ``place-dock`` the belief is at the goal before the robot came in along an edge
 ``unstick``    the stall watchdog fired: little driven for ``stall_s``
+``settle``     a departure from the place the belief is at lost its edge: dock on the place
 ``find-edge``  the policy says RotateAndFindEdge, or a fruitless search turn explores
 ``follow``     the policy says Navigate
 ``explore``    the policy says Explore
@@ -31,8 +33,10 @@ from server.navigation.observation import Observation
 
 PRECEDENCE: tuple[str, ...] = (
     "backoff",
+    "escape",
     "place-dock",
     "unstick",
+    "settle",
     "find-edge",
     "follow",
     "explore",

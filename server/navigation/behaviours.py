@@ -11,12 +11,19 @@ into the goal, lives in :mod:`server.navigation.docking`.
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Protocol
 
 import numpy as np
 
 from server.belief.model import Action, ActionKind
-from server.motion import explore_command, navigate_command, open_side, rotate_command
+from server.motion import (
+    explore_command,
+    navigate_command,
+    open_heading,
+    open_side,
+    rotate_command,
+)
 from server.navigation.command import Command, Proposal
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
 from server.navigation.runtime import TourRuntime
@@ -41,6 +48,8 @@ class Behaviour(Protocol):
 
 
 NOTHING = ViewRequest()
+MOVED_AWAY = frozenset({"unsticking", "escaping", "settling"})
+"""Events that say the robot was driven elsewhere on the last frame, whatever it was doing."""
 
 
 # -- following an edge ------------------------------------------------------------------------
@@ -130,7 +139,11 @@ class FindEdge:
     onto the edge from there (reported as Navigate, so the belief follows onto it) and keep
     going while the frames still match the edge. After ``find_turns`` full turns without
     finding it, the start of the edge is not in sight from here: explore toward open space for
-    ``unstick_s`` (labelled ``unstick``), then search afresh (001 7.1).
+    ``unstick_s`` (labelled ``unstick``), then search afresh (001 7.1). Driving onto the same
+    edge more than ``search_departures`` times in a task, losing it each time, is a loop
+    (the departure view matches from where the robot stands, the edge does not follow): it
+    explores likewise. Each such fruitless round explores longer; after ``search_rounds`` of
+    them the task fails (lost) rather than wandering on.
 
     From a location the sought images are those around where the taught robot began to move
     forward (not the turn on the spot before it: the spin itself finds the heading); turning
@@ -145,6 +158,10 @@ class FindEdge:
         self.leaving: tuple[int, int, int] | None = None  # edge, image along it, misses
         self.searched_rad = 0.0  # turned while searching without finding the edge
         self.explore_until: float | None = None  # robot time the fruitless-turn explore ends
+        self.departures: Counter[int] = Counter()  # times driven onto each edge this task
+        self.rounds = 0  # fruitless search rounds this task
+        self.why = ""  # why the robot explores
+        self._events: frozenset[str] = frozenset()
 
     def _edge(self, obs: Observation) -> int | None:
         a = obs.decision.action
@@ -194,13 +211,15 @@ class FindEdge:
         )
 
     def _unstuck(self, obs: Observation) -> bool:
-        """Whether an :class:`Unstick` ran on the last frame (the robot went elsewhere)."""
-        return obs.previous is not None and "unsticking" in obs.previous.events
+        """Whether an :class:`Unstick`, an :class:`Escape` or a settling on a place ran on the
+        last frame (the robot went elsewhere)."""
+        return obs.previous is not None and bool(obs.previous.events & MOVED_AWAY)
 
     def _exploring(self, obs: Observation) -> bool:
         return self.explore_until is not None and elapsed(self.explore_until, obs.t) > 0
 
     def propose(self, obs: Observation) -> Proposal | None:
+        self._events = frozenset()
         if self._unstuck(obs):
             self.leaving, self.searched_rad = None, 0.0
         if self._exploring(obs):
@@ -221,13 +240,29 @@ class FindEdge:
             return Proposal(command, "driving onto the edge it found")
         self.leaving = None
         command, why = self._search(obs, edge)
-        if command.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
-            return Proposal(command, why)  # found: driving onto it
+        p = self.rt.params
+        if command.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:  # found: driving onto it
+            if obs.previous is None or obs.previous.winner == self.name:  # (it did search)
+                self.departures[edge] += 1
+            if self.departures[edge] <= p.search_departures:
+                return Proposal(command, why)
+            self.departures[edge], self.leaving = 0, None
+            return self._fruitless(obs, f"driven onto the edge {p.search_departures} times")
         self.searched_rad += abs(command.w) * obs.dt
-        if self.searched_rad >= 2 * np.pi * self.rt.params.motion.find_turns:
-            self.explore_until = obs.t + self.rt.params.motion.unstick_s
-            return self._explore(obs)
+        if self.searched_rad >= 2 * np.pi * p.motion.find_turns:
+            return self._fruitless(obs, f"{p.motion.find_turns} turns without finding the edge")
         return Proposal(command, why)
+
+    def _fruitless(self, obs: Observation, why: str) -> Proposal:
+        """A search round that found nothing: explore, longer each round; give up after
+        ``search_rounds``."""
+        p = self.rt.params
+        self.rounds += 1
+        if self.rounds > p.search_rounds:
+            self._events = frozenset({f"failed: lost: {p.search_rounds} searches found no edge"})
+        self.explore_until = obs.t + p.motion.unstick_s * min(self.rounds, 3)
+        self.why = f"{why} (round {self.rounds})"
+        return self._explore(obs)
 
     def _search(self, obs: Observation, edge: int) -> tuple[Command, str]:
         rt, mp = self.rt, self.rt.params.motion
@@ -252,10 +287,10 @@ class FindEdge:
     def _explore(self, obs: Observation) -> Proposal:
         mp = self.rt.params.motion
         command = Command(*explore_command(obs.depth, mp), Action.explore(), None, "unstick")
-        return Proposal(command, f"{mp.find_turns} turns without finding the edge")
+        return Proposal(command, self.why)
 
     def events(self) -> frozenset[str]:
-        return frozenset()
+        return self._events
 
 
 # -- exploring, standing -----------------------------------------------------------------------
@@ -325,7 +360,11 @@ class Unstick:
 
     def propose(self, obs: Observation) -> Proposal | None:
         p = self.p
-        if obs.previous is not None and obs.previous.events & {"bumped", "docking on purpose"}:
+        if obs.previous is not None and obs.previous.events & {
+            "bumped",
+            "escaping",
+            "docking on purpose",
+        }:
             self.since = None
         self._active = False
         if p.stall_s > 0:
@@ -393,3 +432,112 @@ class Backoff:
 
     def events(self) -> frozenset[str]:
         return frozenset({"bumped"}) if self._fired else frozenset()
+
+
+class Escape:
+    """Escape from where the robot cannot go on: the behaviour that won wanted to drive forward
+    for ``escape_s`` and the robot drove less than ``escape_m`` (obstacle avoidance holding it
+    at a door frame, or pressed against something). It backs off (``MotionParams.backoff_v``
+    for ``backoff_s``, turning toward the more open side), turns on the spot to the most open
+    direction of the depth profile, drives that way for ``escape_go_s`` and lets the others
+    try again. Back-offs of the bump reflex count as escapes. More than ``escape_tries``
+    escapes with no ``escape_free_m`` of driving after any of them fail the task (stuck).
+    Docking on purpose (creeping onto a place) is not being held."""
+
+    name = "escape"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.p = runtime.params
+        self.window: tuple[float, float] | None = None  # robot time it began, metres driven
+        self.phase: str | None = None  # back, turn, go
+        self.until = 0.0  # robot time the phase ends (at the latest)
+        self.turn = 0.0  # rad/s while backing off
+        self.tries = 0
+        self.free_m = 0.0  # metres driven since the last escape
+        self._events: frozenset[str] = frozenset()
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        self._events = frozenset()
+        if self.p.escape_s <= 0:
+            return None
+        if self.phase is None and not self._held(obs):
+            return None
+        proposal = self._run(obs)
+        if proposal is not None:
+            self._events |= {"escaping"}
+        return proposal
+
+    def _held(self, obs: Observation) -> bool:
+        """Whether an escape starts this frame (counting the tries and how far the robot has
+        driven since the last one)."""
+        p, mp, prev = self.p, self.p.motion, obs.previous
+        if self.tries:
+            self.free_m += abs(obs.v) * obs.dt
+            if self.free_m >= p.escape_free_m:
+                self.tries, self.free_m = 0, 0.0
+        if prev is not None and "bumped" in prev.events:
+            self.window = None
+            self._tried()
+            return False
+        wanted = None if prev is None else prev.wanted
+        if (
+            prev is None
+            or wanted is None
+            or wanted.v < mp.min_v / 2
+            or prev.winner == self.name
+            or "docking on purpose" in prev.events
+        ):
+            self.window = None
+            return False
+        start, driven = self.window or (obs.t, 0.0)
+        driven += abs(obs.v) * obs.dt
+        if driven >= p.escape_m:
+            start, driven = obs.t, 0.0
+        self.window = (start, driven)
+        if elapsed(obs.t, start) < p.escape_s:
+            return False
+        self.window = None
+        if not self._tried():
+            return False
+        self.phase, self.until = "back", obs.t + mp.backoff_s
+        self.turn = mp.spin_w * open_side(obs.depth, mp)
+        return True
+
+    def _tried(self) -> bool:
+        """Count an escape; ``False`` (and the task fails) when there have been too many."""
+        self.tries, self.free_m = self.tries + 1, 0.0
+        if self.tries <= self.p.escape_tries:
+            return True
+        self._events = frozenset(
+            {f"failed: stuck: {self.p.escape_tries} escapes did not free the robot"}
+        )
+        return False
+
+    def _run(self, obs: Observation) -> Proposal | None:
+        mp = self.p.motion
+        if self.phase == "back":
+            if elapsed(self.until, obs.t) > 0:
+                command = Command(-mp.backoff_v, self.turn, Action.do_nothing(), None, "escape")
+                return Proposal(command, f"backing off: held for {self.p.escape_s:.0f} s")
+            self.phase, self.until = "turn", obs.t + mp.escape_turn_s
+        if self.phase == "turn":
+            found = open_heading(obs.depth, mp)
+            if found is not None and elapsed(self.until, obs.t) > 0:
+                bearing, far = found
+                if abs(bearing) > mp.escape_aim_rad or far < mp.avoid_start_m:
+                    side = np.sign(bearing) if abs(bearing) > mp.escape_aim_rad else 0.0
+                    w = mp.spin_w * float(side or np.sign(self.turn) or 1.0)
+                    command = Command(0.0, w, Action.do_nothing(), None, "escape")
+                    return Proposal(command, "turning to the most open side")
+            self.phase, self.until = "go", obs.t + mp.escape_go_s
+        if self.phase == "go" and elapsed(self.until, obs.t) > 0:
+            command = Command(*explore_command(obs.depth, mp), Action.explore(), None, "escape")
+            return Proposal(command, "driving into open space")
+        self.phase = None
+        return None
+
+    def events(self) -> frozenset[str]:
+        return self._events

@@ -14,8 +14,10 @@ BEHAVIOURS: dict[str, str] = {
     "explore": "heading for open space (Explore)",
     "unstick": "exploring for a while: stuck, or a full search turn found nothing",
     "backoff": "backing away from something the robot is pressed against",
+    "escape": "getting free: backing off, turning to the most open side, driving that way",
     "dock": "creeping onto the place the belief arrived at, until the view's scale agrees",
     "place-dock": "docking on the goal's own spin images",
+    "settle": "docking on a place's spin images before setting off from it again",
 }
 """The values of :attr:`Command.behaviour`, with what they mean (shown on the dashboard)."""
 

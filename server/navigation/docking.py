@@ -31,6 +31,34 @@ from server.navigation.runtime import TourRuntime
 from server.vision.homing import ScaleResult
 
 
+def top_spins(rt: TourRuntime, obs: Observation, location: int, most: int = 3) -> list[int]:
+    """``location``'s spin images (canonical indices) the engine ranks highest for this frame."""
+    spins = rt.spin_images[location]
+    ranked = spins[np.argsort(-obs.similarity.image[spins], kind="stable")[:most]]
+    return [int(i) for i in ranked]
+
+
+def best_fit(views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
+    """Of ``candidates``, the one the frame fits best (most inliers, zoomed scale fits) and
+    that fit; the first and ``None`` when none fits."""
+    best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
+    for i in candidates:
+        fit = views.zoomed_scale(i)
+        if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
+            best = (i, fit)
+    return best
+
+
+def scale_verdict(log_scales: list[float], fit: ScaleResult, tol: float) -> tuple[bool, bool]:
+    """Add ``fit``'s scale to ``log_scales`` (the last three are kept) and say from their
+    median whether the robot stands short of the view (``(True, False)``), past it
+    (``(False, True)``) or within ``tol`` (relative) of it (``(False, False)``)."""
+    log_scales.append(float(np.log(fit.scale)))
+    del log_scales[:-3]
+    log_scale = float(np.median(log_scales))
+    return log_scale > np.log1p(tol), log_scale < np.log1p(-tol)
+
+
 @dataclass
 class Approach:
     """How the robot has been coming into the goal."""
@@ -79,12 +107,6 @@ class Docking:
 
     # -- views -------------------------------------------------------------------------------
 
-    def _spins(self, obs: Observation, most: int = 3) -> list[int]:
-        """The goal's spin images the engine ranks highest for this frame."""
-        spins = self.rt.spin_images[self.goal]
-        ranked = spins[np.argsort(-obs.similarity.image[spins], kind="stable")[:most]]
-        return [int(i) for i in ranked]
-
     def _edge_ends(self, edge: int, most: int = 8) -> list[int]:
         """The images taught at the end of ``edge``: from the last one taught while moving
         forward (where the guide may have turned to name the place), ``most`` evenly spaced."""
@@ -116,24 +138,14 @@ class Docking:
         return ViewRequest(zoomed=frozenset(zoomed))
 
     def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
-        """Of ``candidates``, the one the frame fits best (most inliers) and that fit; the
-        first and ``None`` when none fits."""
-        best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
-        for i in candidates:
-            fit = views.zoomed_scale(i)
-            if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
-                best = (i, fit)
-        return best
+        return best_fit(views, candidates)
 
     def _verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
-        """Add ``fit``'s scale to ``log_scales`` (the last three are kept) and say from their
-        median whether the robot stands short of the view (``(True, False)``), past it
-        (``(False, True)``) or within ``dock_scale_tol`` of it (``(False, False)``)."""
-        log_scales.append(float(np.log(fit.scale)))
-        del log_scales[:-3]
-        log_scale = float(np.median(log_scales))
-        tol = self.p.dock_scale_tol
-        return log_scale > np.log1p(tol), log_scale < np.log1p(-tol)
+        return scale_verdict(log_scales, fit, self.p.dock_scale_tol)
+
+    def _spins(self, obs: Observation, most: int = 3) -> list[int]:
+        """The goal's spin images the engine ranks highest for this frame."""
+        return top_spins(self.rt, obs, self.goal, most)
 
     # -- place docking -----------------------------------------------------------------------
 

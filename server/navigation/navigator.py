@@ -20,6 +20,7 @@ from server.navigation.arbiter import Avoid, arbitrate
 from server.navigation.behaviours import (
     Backoff,
     Behaviour,
+    Escape,
     Explore,
     FindEdge,
     Follow,
@@ -37,6 +38,7 @@ from server.navigation.observation import (
     perceive,
 )
 from server.navigation.runtime import TourRuntime
+from server.navigation.settle import Settle
 from server.navigation.task import Task
 from server.policy.voting import Decision
 from server.vision.features import ImageFeatures, extract
@@ -51,7 +53,9 @@ class Crew:
         self.docking = Docking(runtime, goal)
         self.motion: tuple[Behaviour, ...] = (
             Backoff(runtime),
+            Escape(runtime),
             Unstick(runtime),
+            Settle(runtime),
             FindEdge(runtime),
             Follow(runtime),
             Explore(runtime),
@@ -67,6 +71,13 @@ class Crew:
         for b in self.motion:
             out |= b.events()
         return out
+
+
+def gave_up(events: frozenset[str]) -> str | None:
+    """Why a behaviour gave the task up (its ``"failed: ..."`` event, prefix removed), if one
+    did this frame; the first in alphabetical order when several did."""
+    failures = sorted(e.removeprefix("failed: ") for e in events if e.startswith("failed: "))
+    return failures[0] if failures else None
 
 
 @dataclass(frozen=True)
@@ -183,12 +194,18 @@ class Navigator:
         proposals["dock"] = docking
         command = crew.avoid.apply(chosen.command, obs)
         exploring = obs.decision.action.kind == ActionKind.EXPLORE
+        events = crew.events()
         task.advance(
-            there=there, exploring=exploring, t=frame.timestamp, wall=wall, params=self.params
+            there=there,
+            exploring=exploring,
+            t=frame.timestamp,
+            wall=wall,
+            params=self.params,
+            give_up=gave_up(events),
         )
         reason = chosen.reason
         if not task.underway:
             command, winner = STAND, "stand"
             reason = f"task {task.state}" + (f": {task.reason}" if task.reason else "")
-        self.previous = Outcome(command, winner, reason, proposals, crew.events())
+        self.previous = Outcome(command, winner, reason, proposals, events)
         return Step(obs.features, obs.similarity, obs.summary, obs.decision, command, self.previous)

@@ -16,7 +16,7 @@ import numpy.typing as npt
 
 from server.belief.model import Action
 from server.belief.tracker import BeliefSummary, Tracker
-from server.navigation.command import Command
+from server.navigation.command import Command, Proposal
 from server.navigation.runtime import TourRuntime
 from server.policy.voting import Decision, decide
 from server.vision.features import ImageFeatures, extract
@@ -113,6 +113,12 @@ class Outcome:
 
     def proposed(self, name: str) -> bool:
         return self.proposals.get(name) is not None
+
+    @property
+    def wanted(self) -> Command | None:
+        """The winner's command as it proposed it, before obstacle avoidance changed it."""
+        proposal = self.proposals.get(self.winner)
+        return proposal.command if isinstance(proposal, Proposal) else None
 
 
 @dataclass(frozen=True)

@@ -110,6 +110,25 @@ class NavigationParams:
       almost finding its edge): it explores toward open space for ``MotionParams.unstick_s``
       and then carries on from there. Longer than a full search turn (``find_turns`` at
       ``spin_w``: 16 s), so a robot that is only looking round is left alone. 0 disables it.
+    * ``escape_s`` (3 s of robot time) and ``escape_m`` (0.05 m): the behaviour that won the
+      arbiter wanted to drive forward on every frame of ``escape_s`` (before obstacle avoidance,
+      which may hold the speed at zero: the robot sat 0.24 m from a door frame so, turning back
+      and forth) and the robot reported less than ``escape_m`` driven: it escapes (backs off,
+      turns to the most open side, drives that way: :class:`server.navigation.behaviours.Escape`)
+      and tries again. Back-offs of the bump reflex count as escapes too.
+    * ``escape_tries`` (4) and ``escape_free_m`` (1.0 m): a robot that needs more than this
+      many escapes, none followed by ``escape_free_m`` of driving, fails its task (stuck).
+      ``escape_s`` 0 disables escaping.
+    * ``search_departures`` (3): RotateAndFindEdge that has driven onto the same edge this many
+      times in one task, losing it each time, is in a loop (the departure view matches from
+      where the robot stands but the edge does not follow, e.g. 1 m off the taught spot): it
+      explores instead, like after a fruitless search turn.
+    * ``search_rounds`` (4): fruitless search rounds (a full search turn without finding the
+      edge, or a loop) in one task; each explores longer (``MotionParams.unstick_s`` times the
+      round, at most three times), and one more fails the task (lost) rather than wandering.
+    * ``settle_tries`` (2): after a departure from a place lost its edge, the robot docks on
+      that place's spin images before searching again (:class:`server.navigation.settle.Settle`),
+      at most this many times per place and task; 0 disables it.
     * ``max_task_s`` (300 s of robot time): a task still underway after this fails (timeout).
     * ``lost_steps`` (200 frames): this many consecutive Explore decisions fail the task (lost).
     * ``frame_timeout_s`` (5 s, wall clock): a navigating robot silent for this long has its
@@ -143,6 +162,13 @@ class NavigationParams:
     fresh_belief: bool = True
     stall_s: float = 20.0
     stall_m: float = 0.3
+    escape_s: float = 3.0
+    escape_m: float = 0.05
+    escape_tries: int = 4
+    escape_free_m: float = 1.0
+    search_departures: int = 3
+    search_rounds: int = 4
+    settle_tries: int = 2
     max_task_s: float = 300.0
     lost_steps: int = 200
     frame_timeout_s: float = 5.0

@@ -49,13 +49,24 @@ class Task:
             self.state, self.reason, self.ended_at = state, reason, now
 
     def advance(
-        self, *, there: bool, exploring: bool, t: float, wall: float, params: NavigationParams
+        self,
+        *,
+        there: bool,
+        exploring: bool,
+        t: float,
+        wall: float,
+        params: NavigationParams,
+        give_up: str | None = None,
     ) -> None:
         """Count one frame: ``there`` the robot stands at the goal as docking confirms,
-        ``exploring`` the policy voted Explore; ``t`` its robot time, ``wall`` the wall clock.
+        ``exploring`` the policy voted Explore; ``t`` its robot time, ``wall`` the wall clock;
+        ``give_up`` why a behaviour gave up ("stuck: ...", "lost: ..."), if one did.
         Ends the task as arrived, lost (failed) or timed out (failed) when it is time to."""
         p = params
         self.steps += 1
+        if give_up is not None:
+            self.end(TaskState.FAILED, give_up, wall)
+            return
         self.arrive_streak = self.arrive_streak + 1 if there else 0
         self.explore_streak = self.explore_streak + 1 if exploring else 0
         if self.arrive_streak >= p.arrive_steps:

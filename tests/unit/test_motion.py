@@ -141,3 +141,17 @@ def test_avoidance_keeps_turning_the_way_it_chose() -> None:
     assert avoid_side(door_right, P, previous=1) == -1
     assert avoid_side(np.full(31, 3.0), P, previous=1) == 0
     assert avoid_side(None, P, previous=-1) == 0
+
+
+def test_open_heading_is_straight_on_in_the_open_and_toward_the_gap_otherwise() -> None:
+    from server.motion import open_heading
+
+    p = MotionParams()
+    assert open_heading(None, p) is None
+    bearing, far = open_heading([np.inf] * 31, p)
+    assert bearing == 0.0 and far == pytest.approx(p.open_m)
+    left_open = [3.0] * 10 + [0.3] * 21
+    bearing, far = open_heading(left_open, p)
+    assert bearing > np.radians(20) and far == pytest.approx(p.open_m)
+    bearing, _ = open_heading(left_open[::-1], p)
+    assert bearing < -np.radians(20)

@@ -177,8 +177,8 @@ def _watchdog_explores(s: RobotSession, v: float, steps: int = 40) -> list[bool]
 
 
 def test_a_robot_that_does_not_get_anywhere_explores_for_a_while() -> None:
-    # the bump reflex off: this robot is not told to drive forward only
-    stuck = _watchdog_explores(session(stall_s=2.0, bump_s=0.0), v=0.0)
+    # the bump reflex and escapes off: the watchdog alone
+    stuck = _watchdog_explores(session(stall_s=2.0, bump_s=0.0, escape_s=0.0), v=0.0)
     first = stuck.index(True)
     assert 19 <= first <= 21  # after 2 s of robot time at 10 frames/s
     # it explores for unstick_s (4 s = 40 frames here), then carries on
@@ -211,7 +211,9 @@ def test_a_robot_pressed_against_something_backs_off_turning_to_the_open_side() 
     assert all(commands[i][1] > 0 for i in run)
     # a robot that moves as told never backs off, nor one with the reflex off
     assert all(v >= 0 for v, _ in _pressed(session(stall_s=0.0), reported_v=0.3))
-    assert all(v >= 0 for v, _ in _pressed(session(stall_s=0.0, bump_s=0.0), reported_v=0.0))
+    assert all(
+        v >= 0 for v, _ in _pressed(session(stall_s=0.0, bump_s=0.0, escape_s=0.0), reported_v=0.0)
+    )
 
 
 def test_the_stall_watchdog_leaves_a_moving_robot_alone() -> None:
@@ -220,7 +222,9 @@ def test_the_stall_watchdog_leaves_a_moving_robot_alone() -> None:
 
 
 def test_the_approach_must_be_the_last_move_before_arriving() -> None:
-    s = session(bump_s=0.0)  # the speeds reported here are not answers to the commands
+    s = session(
+        bump_s=0.0, escape_s=0.0
+    )  # the speeds reported here are not answers to the commands
     task = Task(id=1, goal=B, goal_name="B", started_at=0.0)
     s.start_task(task)
     t = 0.0

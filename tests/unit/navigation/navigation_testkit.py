@@ -15,7 +15,7 @@ from server.belief.model import Action, ActionKind
 from server.belief.tracker import BeliefSummary
 from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams, TourRuntime
-from server.navigation.command import Command
+from server.navigation.command import Command, Proposal
 from server.navigation.observation import Observation, Outcome, Views
 from server.policy.voting import Decision
 from server.vision.features import extract
@@ -118,4 +118,6 @@ def observation(
 def outcome(
     command: Command, winner: str = "follow", events: frozenset[str] = frozenset()
 ) -> Outcome:
-    return Outcome(command, winner, f"{winner} says so", {}, events)
+    """The last frame's outcome: ``winner`` proposed ``command`` and it was chosen as is."""
+    proposal = Proposal(command, f"{winner} says so")
+    return Outcome(command, winner, proposal.reason, {winner: proposal}, events)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from navigation_testkit import FEATURES, GRAPH, A, observation, outcome, runtime
 from server.belief.model import Action, ActionKind
 from server.navigation.behaviours import (
     Backoff,
+    Escape,
     Explore,
     FindEdge,
     Follow,
@@ -145,6 +147,129 @@ def test_find_edge_forgets_where_it_was_leaving_after_an_unstick() -> None:
     )
     finder.propose(search_obs(rt, t=1.1, offset=None, previous=unstuck))
     assert finder.leaving is None
+
+
+def test_find_edge_breaks_a_loop_of_departures_that_lose_the_edge() -> None:
+    rt = runtime()
+    p = rt.params
+    finder = FindEdge(rt)
+    t = 0.0
+    for _ in range(p.search_departures):  # each departure lines up, then the policy searches on
+        t += 0.1
+        found = finder.propose(search_obs(rt, t=t, offset=0.0))
+        assert found.command.behaviour == "leave"
+        t += 0.1
+        finder.propose(observation(rt, action=Action.navigate(0), active_edge=0, t=t))
+    t += 0.1
+    looped = finder.propose(search_obs(rt, t=t, offset=0.0))
+    assert looped.command.behaviour == "unstick" and "driven onto the edge" in looped.reason
+    assert finder.rounds == 1 and finder.departures[0] == 0
+
+
+def test_find_edge_explores_longer_each_fruitless_round_then_gives_up() -> None:
+    rt = runtime(search_rounds=2)
+    mp = rt.params.motion
+    finder = FindEdge(rt)
+    turns = math.ceil(2 * math.pi * mp.find_turns / (mp.spin_w * 0.1))
+    t, explored = 0.0, []
+    for _ in range(3):
+        while True:
+            t += 0.1
+            out = finder.propose(search_obs(rt, t=t, offset=None))
+            if out.command.behaviour == "unstick":
+                break
+        events = finder.events()
+        begun = t
+        while finder.propose(search_obs(rt, t=t + 0.1, offset=None)).command.behaviour == "unstick":
+            t += 0.1
+        explored.append(t - begun)
+        if finder.rounds > rt.params.search_rounds:
+            break
+        assert not events
+    assert turns > 0 and finder.rounds == 3
+    assert explored[1] > explored[0] + mp.unstick_s / 2  # each round explores longer
+    assert any(e.startswith("failed: lost") for e in events)
+
+
+# -- escape -------------------------------------------------------------------------------------
+
+
+def _held(rt, escape, *, depth, v=0.0, wanted=FORWARD, frames=100, t=0.0):
+    """Frames of a robot whose winning behaviour wants ``wanted``; returns the proposals."""
+    out = []
+    previous = outcome(wanted)
+    for _ in range(frames):
+        t += 0.1
+        proposal = escape.propose(observation(rt, t=t, v=v, depth=depth, previous=previous))
+        out.append(proposal)
+        chosen = proposal.command if proposal is not None else wanted
+        winner = "escape" if proposal is not None else "follow"
+        previous = outcome(chosen, winner, escape.events())
+    return out
+
+
+def test_a_robot_held_still_while_wanting_to_drive_escapes_back_turn_go() -> None:
+    rt = runtime()
+    p = rt.params
+    depth = [3.0] * 15 + [0.2] * 16  # blocked ahead-right, open to the left
+    out = _held(rt, Escape(rt), depth=depth, frames=150)
+    first = next(i for i, x in enumerate(out) if x is not None)
+    assert abs((first + 1) * 0.1 - p.escape_s) <= 0.11
+    phases = [x.command for x in out[first:] if x is not None]
+    backing = list(itertools.takewhile(lambda c: c.v < 0, phases))
+    assert len(backing) == round(p.motion.backoff_s / 0.1)
+    assert all(c.w > 0 for c in backing)  # toward the open side
+    assert any(c.v > 0 for c in phases)  # then drives into open space
+    assert all(c.behaviour == "escape" for c in phases)
+
+
+def test_escape_leaves_a_moving_robot_and_docking_alone() -> None:
+    rt = runtime()
+    assert not any(_held(rt, Escape(rt), depth=[3.0] * 31, v=0.2))
+    turning = Command(0.0, 0.5, Action.rotate(0), None, "search")
+    assert not any(_held(rt, Escape(rt), depth=[3.0] * 31, wanted=turning))
+    escape, t, docking = (
+        Escape(rt),
+        0.0,
+        outcome(FORWARD, "place-dock", frozenset({"docking on purpose"})),
+    )
+    for _ in range(100):
+        t += 0.1
+        assert escape.propose(observation(rt, t=t, v=0.0, previous=docking)) is None
+
+
+def test_too_many_escapes_fail_the_task_as_stuck_and_driving_on_forgives_them() -> None:
+    rt = runtime(escape_tries=2)
+    escape = Escape(rt)
+    previous, t, escapes, failed_at = outcome(FORWARD), 0.0, 0, None
+    for k in range(600):  # boxed in: nothing it does moves it
+        t += 0.1
+        proposal = escape.propose(observation(rt, t=t, v=0.0, depth=[0.2] * 31, previous=previous))
+        escapes += proposal is not None and previous.winner != "escape"
+        if any(e.startswith("failed: stuck") for e in escape.events()):
+            failed_at = k
+            break
+        chosen = (proposal.command, "escape") if proposal is not None else (FORWARD, "follow")
+        previous = outcome(*chosen, escape.events())
+    assert escapes == 2 and failed_at is not None  # two escapes, then it gives up
+    rt2 = runtime(escape_tries=2)
+    forgiving = Escape(rt2)
+    _held(rt2, forgiving, depth=[0.2] * 31, frames=60)
+    assert forgiving.tries == 1
+    _held(rt2, forgiving, depth=[3.0] * 31, v=0.3, frames=80, t=10.0)  # free, 0.6 m after it
+    assert forgiving.tries == 0
+
+
+def test_a_bump_back_off_counts_as_an_escape_try() -> None:
+    rt = runtime(escape_tries=1)
+    escape = Escape(rt)
+    bumped = outcome(
+        Command(-0.1, 0.5, Action.do_nothing(), None, "backoff"), "backoff", frozenset({"bumped"})
+    )
+    escape.propose(observation(rt, t=0.1, previous=bumped))
+    assert escape.tries == 1 and not escape.events()
+    escape.propose(observation(rt, t=0.2, previous=bumped))
+    assert any(e.startswith("failed: stuck") for e in escape.events())
 
 
 # -- explore, stand --------------------------------------------------------------------------------
