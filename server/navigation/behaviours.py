@@ -52,6 +52,40 @@ MOVED_AWAY = frozenset({"unsticking", "escaping", "settling"})
 """Events that say the robot was driven elsewhere on the last frame, whatever it was doing."""
 
 
+class DepartureRuns:
+    """Runs of frames driven along one edge (the last frame's command Navigate on it, as
+    ``leave`` or ``follow``), to tell a departure that lost its edge from a flicker of the
+    policy: a run counts once it has lasted ``NavigationParams.departure_min_s`` and ended."""
+
+    def __init__(self, min_s: float) -> None:
+        self.min_s = min_s
+        self.edge: int | None = None
+        self.seconds = 0.0
+
+    @staticmethod
+    def _driving(obs: Observation) -> int | None:
+        last = None if obs.previous is None else obs.previous.command
+        if last is None or last.action.kind != ActionKind.NAVIGATE:
+            return None
+        return last.action.edge
+
+    def ending(self, obs: Observation) -> int | None:
+        """The edge of a run that ends with this frame and counts, if one does (no change)."""
+        if self.edge is None or self._driving(obs) == self.edge:
+            return None
+        return self.edge if self.seconds >= self.min_s else None
+
+    def update(self, obs: Observation) -> int | None:
+        """Count this frame; the edge of a run that ended with it and counts, if one did."""
+        ended = self.ending(obs)
+        edge = self._driving(obs)
+        if edge is not None and edge == self.edge:
+            self.seconds += obs.dt
+        else:
+            self.edge, self.seconds = edge, 0.0
+        return ended
+
+
 # -- following an edge ------------------------------------------------------------------------
 
 
@@ -141,7 +175,8 @@ class FindEdge:
     finding it, the start of the edge is not in sight from here: explore toward open space for
     ``unstick_s`` (labelled ``unstick``), then search afresh (001 7.1). Driving onto the same
     edge more than ``search_departures`` times in a task, losing it each time, is a loop
-    (the departure view matches from where the robot stands, the edge does not follow): it
+    (the departure view matches from where the robot stands, the edge does not follow; runs
+    along the edge shorter than ``departure_min_s`` are not counted): it
     explores likewise. Each such fruitless round explores longer; after ``search_rounds`` of
     them the task fails (lost) rather than wandering on.
 
@@ -158,7 +193,8 @@ class FindEdge:
         self.leaving: tuple[int, int, int] | None = None  # edge, image along it, misses
         self.searched_rad = 0.0  # turned while searching without finding the edge
         self.explore_until: float | None = None  # robot time the fruitless-turn explore ends
-        self.departures: Counter[int] = Counter()  # times driven onto each edge this task
+        self.departures: Counter[int] = Counter()  # runs along each edge that ended, this task
+        self.runs = DepartureRuns(runtime.params.departure_min_s)
         self.rounds = 0  # fruitless search rounds this task
         self.why = ""  # why the robot explores
         self._events: frozenset[str] = frozenset()
@@ -220,6 +256,9 @@ class FindEdge:
 
     def propose(self, obs: Observation) -> Proposal | None:
         self._events = frozenset()
+        ended = self.runs.update(obs)
+        if ended is not None:
+            self.departures[ended] += 1
         if self._unstuck(obs):
             self.leaving, self.searched_rad = None, 0.0
         if self._exploring(obs):
@@ -242,12 +281,10 @@ class FindEdge:
         command, why = self._search(obs, edge)
         p = self.rt.params
         if command.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:  # found: driving onto it
-            if obs.previous is None or obs.previous.winner == self.name:  # (it did search)
-                self.departures[edge] += 1
-            if self.departures[edge] <= p.search_departures:
+            if self.departures[edge] < p.search_departures:
                 return Proposal(command, why)
             self.departures[edge], self.leaving = 0, None
-            return self._fruitless(obs, f"driven onto the edge {p.search_departures} times")
+            return self._fruitless(obs, f"lost the edge {p.search_departures} times after leaving")
         self.searched_rad += abs(command.w) * obs.dt
         if self.searched_rad >= 2 * np.pi * p.motion.find_turns:
             return self._fruitless(obs, f"{p.motion.find_turns} turns without finding the edge")

@@ -123,6 +123,9 @@ class NavigationParams:
       times in one task, losing it each time, is in a loop (the departure view matches from
       where the robot stands but the edge does not follow, e.g. 1 m off the taught spot): it
       explores instead, like after a fruitless search turn.
+    * ``departure_min_s`` (1 s of robot time): driving along an edge for less than this before
+      the policy turns back to searching is a flicker of the vote, not a departure that lost its
+      edge (for ``search_departures`` and settling).
     * ``search_rounds`` (4): fruitless search rounds (a full search turn without finding the
       edge, or a loop) in one task; each explores longer (``MotionParams.unstick_s`` times the
       round, at most three times), and one more fails the task (lost) rather than wandering.
@@ -168,6 +171,7 @@ class NavigationParams:
     escape_free_m: float = 1.0
     search_departures: int = 3
     search_rounds: int = 4
+    departure_min_s: float = 1.0
     settle_tries: int = 2
     max_task_s: float = 300.0
     lost_steps: int = 200

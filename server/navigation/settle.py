@@ -18,6 +18,7 @@ import numpy as np
 
 from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
+from server.navigation.behaviours import DepartureRuns
 from server.navigation.command import Command, Proposal
 from server.navigation.docking import best_fit, scale_verdict, top_spins
 from server.navigation.observation import Observation, ViewRequest
@@ -31,8 +32,9 @@ class Settle:
     """Dock on the place a departure set off from and lost, before searching again.
 
     It starts when the policy asks RotateAndFindEdge for an edge from the place the belief is
-    at, and a departure from that place (a ``leave`` command) has been made since the robot last
-    settled there; at most ``NavigationParams.settle_tries`` times per place and task. It stops
+    at, and a departure from that place (driving along one of its edges for at least
+    ``departure_min_s``) has ended since the robot last settled there; at most
+    ``NavigationParams.settle_tries`` times per place and task. It stops
     when the scale of a spin view agrees (three fits in a row, within ``dock_scale_tol``),
     after ``dock_max_m`` of creeping, after ``place_dock_turns`` turns without a spin view in
     sight, or when the belief has been elsewhere for :data:`OFF_PLACE_FRAMES` frames.
@@ -44,6 +46,7 @@ class Settle:
         self.rt = runtime
         self.p = runtime.params
         self.departed: set[int] = set()  # places set off from since last settled there
+        self.runs = DepartureRuns(runtime.params.departure_min_s)
         self.settles: Counter[int] = Counter()  # settlings per place this task
         self.place: int | None = None  # the place being settled on
         self.phase = "look"  # look, creep
@@ -53,13 +56,6 @@ class Settle:
         self.off = 0  # frames in a row with the belief elsewhere
         self.log_scales: list[float] = []
         self._engaged = False
-
-    def _departed_from(self, obs: Observation) -> int | None:
-        """The place the last frame's command set off from along an edge, if it did."""
-        last = None if obs.previous is None else obs.previous.command
-        if last is None or last.behaviour != "leave" or last.action.edge is None:
-            return None
-        return self.rt.graph.edges[last.action.edge].source
 
     def _due(self, obs: Observation) -> int | None:
         """The place to start settling on this frame, if one is due (no state changed)."""
@@ -71,8 +67,9 @@ class Settle:
         place = self.rt.graph.edges[a.edge].source
         if obs.summary.map_state != place or self.settles[place] >= self.p.settle_tries:
             return None
-        departed = place in self.departed or self._departed_from(obs) == place
-        return place if departed else None
+        ending = self.runs.ending(obs)
+        left = None if ending is None else self.rt.graph.edges[ending].source
+        return place if place in self.departed or left == place else None
 
     def wants(self, obs: Observation) -> ViewRequest:
         place = self.place if self.place is not None else self._due(obs)
@@ -85,9 +82,9 @@ class Settle:
 
     def propose(self, obs: Observation) -> Proposal | None:
         self._engaged = False
-        left = self._departed_from(obs)
-        if left is not None:
-            self.departed.add(left)
+        ended = self.runs.update(obs)
+        if ended is not None:
+            self.departed.add(self.rt.graph.edges[ended].source)
         if self.place is None:
             place = self._due(obs)
             if place is None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -149,20 +150,33 @@ def test_find_edge_forgets_where_it_was_leaving_after_an_unstick() -> None:
     assert finder.leaving is None
 
 
+def _drive_along(finder: FindEdge, rt, *, t: float, seconds: float) -> float:
+    """Frames of the robot driving along edge 0 (the policy navigating), then one searching."""
+    leaving = outcome(Command(0.2, 0.0, Action.navigate(0), None, "leave"), "find-edge")
+    for _ in range(round(seconds / 0.1)):
+        t += 0.1
+        navigating = observation(rt, action=Action.navigate(0), active_edge=0, t=t)
+        finder.propose(replace(navigating, previous=leaving))
+    return t
+
+
 def test_find_edge_breaks_a_loop_of_departures_that_lose_the_edge() -> None:
     rt = runtime()
     p = rt.params
     finder = FindEdge(rt)
+    searched = outcome(Command(0.0, 0.5, Action.rotate(0), None, "search"), "find-edge")
     t = 0.0
-    for _ in range(p.search_departures):  # each departure lines up, then the policy searches on
+    for _ in range(p.search_departures):  # each departure lines up, drives on, loses the edge
         t += 0.1
-        found = finder.propose(search_obs(rt, t=t, offset=0.0))
+        found = finder.propose(search_obs(rt, t=t, offset=0.0, previous=searched))
         assert found.command.behaviour == "leave"
-        t += 0.1
-        finder.propose(observation(rt, action=Action.navigate(0), active_edge=0, t=t))
+        t = _drive_along(finder, rt, t=t, seconds=p.departure_min_s + 0.3)
+        t += 0.1  # a search frame, then a flicker of the vote (shorter than departure_min_s)
+        finder.propose(search_obs(rt, t=t, offset=None, previous=searched))
+        t = _drive_along(finder, rt, t=t, seconds=p.departure_min_s / 2)
     t += 0.1
-    looped = finder.propose(search_obs(rt, t=t, offset=0.0))
-    assert looped.command.behaviour == "unstick" and "driven onto the edge" in looped.reason
+    looped = finder.propose(search_obs(rt, t=t, offset=0.0, previous=searched))
+    assert looped.command.behaviour == "unstick" and "lost the edge" in looped.reason
     assert finder.rounds == 1 and finder.departures[0] == 0
 
 

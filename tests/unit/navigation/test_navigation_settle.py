@@ -13,6 +13,17 @@ from server.vision.homing import ScaleResult
 
 LEFT_A = outcome(Command(0.2, 0.0, Action.navigate(0), 3, "leave"), "find-edge")
 """The last frame drove onto edge 0 (A -> B) from A."""
+SEARCHED = outcome(Command(0.0, 0.5, Action.rotate(0), None, "search"), "find-edge")
+"""The last frame turned, searching for edge 0."""
+
+
+def depart(rt, settle: Settle, *, seconds: float, t: float = 0.0) -> float:
+    """Frames driving along edge 0 from A for ``seconds`` (the policy navigating)."""
+    for _ in range(round(seconds / 0.1)):
+        t += 0.1
+        driving = observation(rt, action=Action.navigate(0), active_edge=0, t=t, previous=LEFT_A)
+        assert settle.propose(driving) is None
+    return t
 
 
 def fit(scale: float, offset: float = 0.0, inliers: int = 40) -> ScaleResult:
@@ -42,21 +53,24 @@ def test_no_settling_without_a_lost_departure_from_the_place() -> None:
     rt = runtime()
     settle = Settle(rt)
     assert settle.propose(settle_obs(rt, settle, t=1.0, scale=1.0)) is None
-    navigating = observation(rt, action=Action.navigate(0), active_edge=0, previous=LEFT_A)
-    assert settle.propose(navigating) is None  # not searching: nothing to settle for yet
-    assert settle.departed == {A}
+    t = depart(rt, settle, seconds=0.5, t=1.0)  # a flicker of the vote: not a departure
+    assert settle.propose(settle_obs(rt, settle, t=t + 0.1, scale=1.3, previous=SEARCHED)) is None
+    t = depart(rt, settle, seconds=1.5, t=t + 0.1)
+    assert settle.departed == set()  # still driving along it
+    assert settle.propose(settle_obs(rt, settle, t=t + 0.1, scale=1.3, previous=SEARCHED))
 
 
 def test_after_a_lost_departure_it_creeps_onto_the_spot_then_hands_back() -> None:
     rt = runtime()
     p = rt.params
     settle = Settle(rt)
-    first = settle.propose(settle_obs(rt, settle, t=1.0, scale=1.3, previous=LEFT_A))
+    t = depart(rt, settle, seconds=1.5)
+    first = settle.propose(settle_obs(rt, settle, t=t + 0.1, scale=1.3, previous=SEARCHED))
     assert first is not None and first.command.behaviour == "settle"
     assert first.command.v == p.motion.dock_v  # the view looks smaller than taught: creep on
     assert first.command.target_image in set(rt.spin_images[A].tolist())
     assert {"settling", "docking on purpose"} <= settle.events()
-    t, previous, moves = 1.0, outcome(first.command, "settle"), []
+    t, previous, moves = t + 0.1, outcome(first.command, "settle"), []
     for _ in range(5):  # fits at the taught scale: once three agree, settled
         t += 0.1
         out = settle.propose(settle_obs(rt, settle, t=t, scale=1.0, previous=previous))
@@ -71,7 +85,7 @@ def test_it_looks_round_for_a_spin_view_and_gives_up_after_the_turns() -> None:
     rt = runtime()
     p = rt.params
     settle = Settle(rt)
-    t, previous, frames = 1.0, LEFT_A, 0
+    t, previous, frames = depart(rt, settle, seconds=1.5) + 0.1, SEARCHED, 0
     while True:
         out = settle.propose(settle_obs(rt, settle, t=t, scale=None, previous=previous))
         if out is None:
@@ -85,12 +99,14 @@ def test_it_looks_round_for_a_spin_view_and_gives_up_after_the_turns() -> None:
 def test_settling_stops_when_the_belief_leaves_the_place_and_is_bounded_per_place() -> None:
     rt = runtime(settle_tries=1)
     settle = Settle(rt)
-    assert settle.propose(settle_obs(rt, settle, t=1.0, scale=1.3, previous=LEFT_A)) is not None
+    t = depart(rt, settle, seconds=1.5)
+    assert settle.propose(settle_obs(rt, settle, t=t + 0.1, scale=1.3, previous=SEARCHED))
     previous = outcome(Command(0.12, 0.0, Action.do_nothing(), None, "settle"), "settle")
     for k in range(OFF_PLACE_FRAMES + 1):
-        elsewhere = settle_obs(rt, settle, t=1.1 + 0.1 * k, scale=1.3, previous=previous, at=B)
+        elsewhere = settle_obs(rt, settle, t=t + 0.2 + 0.1 * k, scale=1.3, previous=previous, at=B)
         out = settle.propose(elsewhere)
     assert out is None and settle.place is None
     # a second lost departure from A: no more settling there in this task
-    assert settle.propose(settle_obs(rt, settle, t=9.0, scale=1.3, previous=LEFT_A)) is None
+    t = depart(rt, settle, seconds=1.5, t=9.0)
+    assert settle.propose(settle_obs(rt, settle, t=t + 0.1, scale=1.3, previous=SEARCHED)) is None
     assert GRAPH.edges[0].source == A
