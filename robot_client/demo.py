@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from robot_client.client import ApiError, TeachRepeatClient
+from robot_client.sim.check_plan import add_plan_argument
 from robot_client.sim.floorplan import CONDITIONS
 
 DEMO_ROBOT = "sim-robot"
@@ -29,13 +30,7 @@ DEMO_ROBOT = "sim-robot"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--db", type=Path, help="SQLite file (default: data/teachrepeat.sqlite)")
-    parser.add_argument(
-        "--plan",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="floor plan JSON file of the home (default: the packaged apartment)",
-    )
+    add_plan_argument(parser)
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: random)")
     parser.add_argument(
         "--condition",

@@ -29,6 +29,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_plan_argument(parser: argparse.ArgumentParser, *, several: bool = False) -> None:
+    """``--plan FILE`` (``several``: ``--plan FILE [FILE ...]``), default ``None``: the
+    packaged apartment; read with :func:`load_plans_or_exit`."""
+    parser.add_argument(
+        "--plan",
+        nargs="+" if several else None,
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="floor plan JSON file"
+        + ("s" if several else " of the home")
+        + " (default: the packaged apartment)",
+    )
+
+
 def load_plans_or_exit(paths: Sequence[Path | None], prog: str) -> list[FloorPlan]:
     """Load and check every plan (``None``: the packaged apartment); on a problem print them
     all, as ``check-plan`` does, and exit with status 2."""

@@ -37,14 +37,9 @@ DEFAULT_CACHE = Path("data") / "cache" / "tours"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--plan",
-        nargs="+",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="floor plan JSON files (default: the packaged apartment)",
-    )
+    from robot_client.sim.check_plan import add_plan_argument
+
+    add_plan_argument(parser, several=True)
     parser.add_argument(
         "--condition",
         nargs="+",

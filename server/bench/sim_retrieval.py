@@ -32,13 +32,9 @@ CONDITIONS = ("same", "lighting", "moved")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--plan",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="floor plan JSON file of the home (default: the packaged apartment)",
-    )
+    from robot_client.sim.check_plan import add_plan_argument
+
+    add_plan_argument(parser)
     parser.add_argument("--queries", type=int, default=300, help="random poses (default 300)")
     parser.add_argument("--seed", type=int, default=7, help="random seed of the poses")
     parser.add_argument(

@@ -111,9 +111,6 @@ class Outcome:
     proposals: Mapping[str, object] = field(default_factory=dict)
     events: frozenset[str] = frozenset()
 
-    def proposed(self, name: str) -> bool:
-        return self.proposals.get(name) is not None
-
     @property
     def wanted(self) -> Command | None:
         """The winner's command as it proposed it, before obstacle avoidance changed it."""

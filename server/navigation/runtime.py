@@ -122,25 +122,6 @@ class TourRuntime:
         return sim, fine_likelihood(sim.image, self.graph)
 
 
-def _elapsed(now: float, then: float) -> float:
-    """Robot seconds from ``then`` to ``now``, rounded to the microsecond. The difference of two
-    large timestamps carries a rounding error (~1e-13 s at 3000 s) that depends on how large the
-    robot clock has grown; thresholds reached exactly (ten frames of 0.1 s against an
-    ``approach_s`` of 1 s, 40 frames against ``unstick_s``) then fell one frame earlier or later
-    depending on the clock, and with them the course of a whole trial."""
-    return round(now - then, 6)
-
-
-def _next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
-    """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
-    ``eps``, or -1 when none follows."""
-    n = len(v)
-    moving = (np.abs(v) > eps) | (np.abs(w) > eps)
-    idx = np.where(moving, np.arange(n), n)
-    nxt = np.minimum.accumulate(idx[::-1])[::-1]
-    return np.where(nxt < n, nxt, -1).astype(np.int64)
-
-
 def next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:
     """``(n,)``: for each image, the first index at or after it with ``|v|`` or ``|w|`` above
     ``eps``, or -1 when none follows."""

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "vision"))
+sys.path.insert(0, str(Path(__file__).parent / "navigation"))
+from navigation_testkit import FEATURES, GRAPH, A, B, C, D
 from vision_testkit import scene, zoomed
 
 from server.belief.model import Action, ActionKind
@@ -21,32 +23,6 @@ from server.navigation.docking import Docking
 from server.navigation.observation import Outcome, ViewRequest, match_views
 from server.session import RobotSession
 from server.vision.features import extract
-
-A, B, C, D = range(4)
-
-
-def _tour() -> TourGraph:
-    """A <-> B <-> C, ten images per edge, four spin images per place; D has no edges. Image
-    ids are the seeds of their synthetic scenes, all distinct."""
-    ids = iter(range(1000))
-    locs = tuple(Location(name, tuple(next(ids) for _ in range(4))) for name in "ABCD")
-
-    def edge(s: int, t: int) -> Edge:
-        n = 10
-        return Edge(
-            s,
-            t,
-            tuple(next(ids) for _ in range(n)),
-            np.arange(n) * 0.5,
-            np.full(n, 0.3),
-            np.zeros(n),
-        )
-
-    return TourGraph(locs, (edge(A, B), edge(B, A), edge(B, C), edge(C, B)))
-
-
-GRAPH = _tour()
-FEATURES = [extract(scene(int(i))) for i in GRAPH.image_ids]
 
 
 def session(**changes: object) -> RobotSession:

@@ -25,7 +25,8 @@ A, B, C, D = range(4)
 
 
 def tour() -> TourGraph:
-    """A <-> B <-> C, ten images per edge, four spin images per place; D has no edges."""
+    """A <-> B <-> C, ten images per edge, four spin images per place; D has no edges. Image
+    ids are the seeds of their synthetic scenes, all distinct."""
     ids = iter(range(1000))
     locs = tuple(Location(name, tuple(next(ids) for _ in range(4))) for name in "ABCD")
 
