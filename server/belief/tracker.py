@@ -17,13 +17,19 @@ This module imports NumPy, SciPy and :mod:`server.domain` only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
+from server.belief.appearance import (
+    AppearanceParams,
+    model_scores,
+    posterior,
+    update_log_posterior,
+)
 from server.belief.model import (
     Action,
     BeliefModel,
@@ -168,6 +174,8 @@ class TrackerParams:
       motion matrices are reused from frame to frame (a 1% error in the expected advance).
     * ``top_k`` (5): how many upper states :attr:`BeliefSummary.top_states` lists.
     * ``smoother_lag`` (10): steps kept for the fixed-lag smoother (0 disables it).
+    * ``appearance``: how the belief over appearance models follows the evidence when
+      :meth:`Tracker.step` gets one likelihood per model (:mod:`server.belief.appearance`).
     """
 
     localised_mass: float = 0.8
@@ -182,6 +190,7 @@ class TrackerParams:
     motion_quantum: float = 0.02
     top_k: int = 5
     smoother_lag: int = 10
+    appearance: AppearanceParams = field(default_factory=AppearanceParams)
 
     def __post_init__(self) -> None:
         if not 0 < self.localised_mass <= 1:
@@ -213,6 +222,8 @@ class BeliefSummary:
     * ``localised`` / ``localised_state``: the conservative flag (see :class:`TrackerParams`).
     * ``evidence``: recent / usual evidence (see :class:`TrackerParams`; ~1 when the images
       match the belief, well below 1 after a kidnapping); ``teleport``: kidnap mixing used.
+    * ``appearance``: ``(K,)`` belief over the appearance models whose likelihoods the step
+      mixed (:mod:`server.belief.appearance`); ``(1.0,)`` with a single likelihood.
     """
 
     belief: FloatArray
@@ -227,6 +238,7 @@ class BeliefSummary:
     evidence: float = 1.0
     teleport: float = 0.0
     step: int = 0
+    appearance: tuple[float, ...] = (1.0,)
 
     @cached_property
     def along_edge_flat(self) -> FloatArray:
@@ -261,6 +273,7 @@ def summarise(
     teleport: float = 0.0,
     step: int = 0,
     state: FloatArray | None = None,
+    appearance: tuple[float, ...] = (1.0,),
 ) -> BeliefSummary:
     """Build a :class:`BeliefSummary` of a ``(n_fine,)`` belief (vectorised, no state loops).
 
@@ -297,6 +310,7 @@ def summarise(
         evidence=evidence,
         teleport=teleport,
         step=step,
+        appearance=appearance,
     )
 
 
@@ -304,8 +318,9 @@ class Tracker:
     """The belief of one robot on one tour.
 
     ``Tracker(model, params)``; :meth:`step` once per frame with the action that was executed
-    since the previous frame, the ``(n_fine,)`` likelihood (:func:`fine_likelihood`), the current
-    forward speed ``v`` (m/s) and the time since the previous frame ``dt`` (s).
+    since the previous frame, the ``(n_fine,)`` likelihood (:func:`fine_likelihood`; or
+    ``(K, n_fine)``, one per appearance model, mixed as :mod:`server.belief.appearance` says),
+    the current forward speed ``v`` (m/s) and the time since the previous frame ``dt`` (s).
     ``belief`` is ``(n_fine,) float64`` summing to 1 (a copy; the tracker never hands out its
     own array).
     """
@@ -335,6 +350,7 @@ class Tracker:
         self._streak_state = -1
         self._streak = 0
         self._steps = 0
+        self._appearance = np.zeros(0)  # log posterior over appearance models; empty = none yet
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -361,20 +377,35 @@ class Tracker:
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
-        if lik.shape != (m.n_fine,):
+        stacked = lik.ndim == 2
+        if lik.shape[-1:] != (m.n_fine,) or lik.ndim not in (1, 2) or len(lik) == 0:
             raise InvalidLikelihoodError(
-                f"likelihood has shape {lik.shape}, expected ({m.n_fine},); build it with "
-                "fine_likelihood(image_sim, graph)"
+                f"likelihood has shape {lik.shape}, expected ({m.n_fine},) or (K, {m.n_fine}); "
+                "build it with fine_likelihood(image_sim, graph)"
             )
         if not math.isfinite(float(lik.sum())) or float(lik.min()) < 0:
             raise InvalidLikelihoodError("likelihood must be finite and >= 0")
+        lik = lik.reshape(-1, m.n_fine)
         if p.likelihood_power != 1.0:
             lik = lik**p.likelihood_power
-        top_lik = float(lik.max())
+        top = lik.max(axis=1, keepdims=True)
         # an all-zero frame carries no information: predict only
-        lik = np.maximum(lik, p.likelihood_floor * top_lik) if top_lik > 0 else np.ones(m.n_fine)
+        lik = np.where(top > 0, np.maximum(lik, p.likelihood_floor * top), 1.0)
         op = m.operator(action, advance=self._advance(m.progress_speed(v, w), dt))
         moved = op.apply(self._belief)
+        if stacked:
+            if len(self._appearance) != len(lik):
+                self._appearance = np.zeros(len(lik))
+            # while the images stop matching the belief (a kidnapping), a model cannot earn
+            # trust by agreeing with the stale belief: only forget
+            usual = self._fast < 0 or self._fast >= p.localised_evidence * self._slow
+            scores = model_scores(moved, lik) if usual else np.ones(len(lik))
+            self._appearance = update_log_posterior(self._appearance, scores, p.appearance)
+            mix = posterior(self._appearance)
+            lik = mix @ lik
+        else:
+            mix = np.ones(1)
+            lik = lik[0]
         ratio = float(moved @ lik) / (float(moved.sum()) * float(lik.max()))  # scale-free
         if self._fast < 0:
             self._fast = self._slow = ratio
@@ -415,6 +446,7 @@ class Tracker:
             teleport=eps,
             step=self._steps,
             state=state,
+            appearance=tuple(float(x) for x in mix),
         )
         return self._summary
 

@@ -18,7 +18,8 @@ import numpy.typing as npt
 from server.bench.common import stats
 from server.bench.common import write_json as _write_json
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.index import EngineParams, TourIndex, learn_weights
+from server.vision.index import EngineParams, TourIndex
+from server.vision.learning import learn_weights
 
 Image = npt.NDArray[np.uint8]
 NORDLAND_TOLERANCES = tuple(range(0, 11))

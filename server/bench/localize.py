@@ -26,7 +26,7 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -264,19 +264,29 @@ PATCH_WEIGHTS = (0.0, 0.0, 0.0, 0.0, 1.0)
 
 
 def make_index(
-    feats: Sequence[ImageFeatures], graph: TourGraph, params: EngineParams, *, learn: bool = True
+    feats: Sequence[ImageFeatures],
+    graph: TourGraph,
+    params: EngineParams,
+    *,
+    learn: bool = True,
+    image_of: Callable[[int], Image] | None = None,
 ) -> TourIndex:
     """The tour's engine index with weights learned on it, as the navigation service does.
 
     ``feats[p]`` are the features of image id ``p`` (the tour's ``p``-th reference frame, as
-    :func:`build_tour` numbers them); the index holds them in canonical image order.
+    :func:`build_tour` numbers them) and ``image_of(p)`` its image (for the changed-light views
+    the learning makes; ``None``: learn from the features alone); the index holds them in
+    canonical image order.
     """
-    from server.vision.index import TourIndex, learn_weights
+    from server.vision.index import TourIndex
+    from server.vision.learning import learn_tour_weights
 
     index = TourIndex(params)
-    index.add([feats[int(i)] for i in graph.image_ids], graph.image_state)
+    ids = [int(i) for i in graph.image_ids]
+    index.add([feats[p] for p in ids], graph.image_state)
     if learn:
-        index.set_weights(learn_weights(index, params=params))
+        source = None if image_of is None else (lambda i: image_of(ids[i]))
+        index.set_weights(learn_tour_weights(index, source))
     return index
 
 
@@ -689,7 +699,13 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     ref_feats = [extract(read_image(ref_files[k]), params.features) for k in ref_frames]
     tour = build_tour(ref_frames, args.location_every)
-    index = make_index(ref_feats, tour.graph, params, learn=learn)
+    index = make_index(
+        ref_feats,
+        tour.graph,
+        params,
+        learn=learn,
+        image_of=lambda p: read_image(ref_files[ref_frames[p]]),
+    )
     build_s = time.perf_counter() - t0
     qry_images = [read_image(qry_files[k]) for k in qry_frames]
     res = replay(

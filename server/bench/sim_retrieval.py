@@ -126,7 +126,8 @@ def evaluate(
     """Recall of one engine configuration in every condition."""
     from server.navigation import ROBUST_WEIGHTS
     from server.vision.features import FeatureParams, extract
-    from server.vision.index import EngineParams, TourIndex, learn_weights
+    from server.vision.index import EngineParams, TourIndex
+    from server.vision.learning import learn_weights
 
     fp = FeatureParams(colour_constancy=colour_constancy)
     ep = EngineParams(features=fp)

@@ -37,7 +37,7 @@ from server.navigation.observation import (
     elapsed,
     perceive,
 )
-from server.navigation.runtime import TourRuntime
+from server.navigation.runtime import TourRuntime, preferred
 from server.navigation.settle import Settle
 from server.navigation.task import Task
 from server.policy.voting import Decision
@@ -164,9 +164,9 @@ class Navigator:
     def _idle(self, frame: Frame, dt: float) -> Step:
         """No task underway: the belief goes on; the robot stands."""
         features = extract(frame.image, self.params.features)
-        similarity, likelihood = self.runtime.observe(features)
+        similarities, likelihood = self.runtime.observe(features)
         summary = self.tracker.step(self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt)
-        return Step(features, similarity, summary, None, STAND, None)
+        return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 
     def _navigate(self, task: Task, crew: Crew, frame: Frame, dt: float, wall: float) -> Step:
         if task.started_robot_time is None:

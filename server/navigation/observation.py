@@ -17,7 +17,7 @@ import numpy.typing as npt
 from server.belief.model import Action
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation.command import Command, Proposal
-from server.navigation.runtime import TourRuntime
+from server.navigation.runtime import TourRuntime, preferred
 from server.policy.voting import Decision, decide
 from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
@@ -192,8 +192,9 @@ def perceive(
     """
     p = runtime.params
     features = extract(frame.image, p.features)
-    similarity, likelihood = runtime.observe(features)
+    similarities, likelihood = runtime.observe(features)
     summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt)
+    similarity = preferred(similarities, summary)
     decision = decide(
         runtime.graph, summary.belief, goal, runtime.costs(goal), p.policy, hold_goal=hold_goal
     )

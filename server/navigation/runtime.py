@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.model import BeliefModel, build_model
-from server.belief.tracker import fine_likelihood
+from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
 from server.navigation.params import NavigationParams
 from server.policy.costs import cost_to_goal
@@ -116,10 +116,19 @@ class TourRuntime:
         n = self.graph.edges[edge].n_images
         return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
 
-    def observe(self, features: ImageFeatures) -> tuple[Similarity, FloatArray]:
-        """Engine similarities of a frame and the ``(n_fine,)`` likelihood they give."""
-        sim = self.index.query(features, n_states=self.graph.n_states)
-        return sim, fine_likelihood(sim.image, self.graph)
+    def observe(self, features: ImageFeatures) -> tuple[tuple[Similarity, ...], FloatArray]:
+        """Engine similarities of a frame under every appearance model
+        (:meth:`TourIndex.query_models`) and the ``(K, n_fine)`` likelihoods they give, one row
+        per model, for :meth:`Tracker.step` to weigh."""
+        sims = self.index.query_models(features, n_states=self.graph.n_states)
+        return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
+
+
+def preferred(sims: tuple[Similarity, ...], summary: BeliefSummary) -> Similarity:
+    """The similarity of the appearance model the belief now trusts most."""
+    if len(summary.appearance) != len(sims):
+        return sims[0]
+    return sims[int(np.argmax(summary.appearance))]
 
 
 def next_moving(v: FloatArray, w: FloatArray, eps: float = 1e-3) -> npt.NDArray[np.int64]:

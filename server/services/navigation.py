@@ -23,7 +23,7 @@ from server.navigation import Command, NavigationParams, Task, TaskState, TourRu
 from server.session import RobotSession
 from server.storage.repo import NavigationRow, Repo
 from server.vision.features import FeatureParams, ImageFeatures, extract
-from server.vision.index import learn_weights
+from server.vision.learning import learn_weights
 
 BELIEF_SNAPSHOT_S = 1.0
 """Wall-clock seconds between two persisted belief snapshots of a navigating robot."""

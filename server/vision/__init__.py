@@ -9,8 +9,10 @@ Pipeline, one module per step:
    patch-normalised thumbnail). ``ImageFeatures.to_bytes`` is what storage persists.
 2. :mod:`server.vision.index` - the per-tour index (contiguous arrays, incremental ``add``), the
    two-pass query (weighted signature distance to every image, then local features and an optional
-   RANSAC check on the candidates) and the learned signature weights.
-3. :mod:`server.vision.homing` - horizontal offset between the current frame and a target image,
+   RANSAC check on the candidates).
+3. :mod:`server.vision.learning` - the signature weights learned per tour, on the tour's images
+   and on copies of them under changed light (:mod:`server.vision.augment`).
+4. :mod:`server.vision.homing` - horizontal offset between the current frame and a target image,
    for visual homing along an edge (001 section 7.2), and the scale between them (how far short
    of or past the target's viewpoint the robot stands) for the last metre onto a place.
 """
@@ -30,8 +32,8 @@ from server.vision.index import (
     Similarity,
     TourIndex,
     default_weights,
-    learn_weights,
 )
+from server.vision.learning import LearnParams, learn_tour_weights, learn_weights
 
 __all__ = [
     "EngineParams",
@@ -39,6 +41,7 @@ __all__ = [
     "HomingParams",
     "HomingResult",
     "ImageFeatures",
+    "LearnParams",
     "ScaleParams",
     "ScaleResult",
     "Similarity",
@@ -47,6 +50,7 @@ __all__ = [
     "extract",
     "homing_offset",
     "homing_scale",
+    "learn_tour_weights",
     "learn_weights",
     "match_features",
 ]

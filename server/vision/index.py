@@ -28,6 +28,8 @@ loss so that images of the same state are near and images of different states fa
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import itertools
 import time
 from collections.abc import Sequence
@@ -51,6 +53,11 @@ IntArray = npt.NDArray[np.int64]
 #: tour is too small to learn from. Chosen on the benchmark (docs/retrieval.md).
 DEFAULT_WEIGHTS: tuple[float, ...] = (0.7, 0.0, 0.05, 0.05, 0.2)
 
+#: Weights of the change-robust appearance model: the patch-normalised thumbnail alone (each
+#: pixel against its neighbourhood, as in SeqSLAM), which a change of light or season moves
+#: least (docs/localize.md).
+CHANGED_WEIGHTS: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 1.0)
+
 
 @dataclass(frozen=True)
 class EngineParams:
@@ -61,6 +68,10 @@ class EngineParams:
         n_candidates: N, images kept by the first pass besides the best image of every state.
         weights: signature block weights (hist, thumb, desc_mean, desc_var, patch), >= 0;
             normalised to sum 1. ``None`` means :data:`DEFAULT_WEIGHTS`.
+        changed_weights: weights of a second appearance model that holds when the light or
+            the season changed (:data:`CHANGED_WEIGHTS`); :meth:`TourIndex.query_models`
+            scores a frame with both, and the belief tracker weighs them by how well each
+            explains the camera (:mod:`server.belief.appearance`). ``None``: one model only.
         feature_weight: weight of ``e_features`` (mean nearest-corner distance, ~[0, 1]).
         signature_weight: weight of the first-pass signature distance (~[0, 4]) in ``e``.
         symmetric: ``e_features`` also averages each candidate corner's nearest query corner
@@ -78,6 +89,7 @@ class EngineParams:
     features: FeatureParams = field(default_factory=FeatureParams)
     n_candidates: int = 20
     weights: tuple[float, ...] | None = None
+    changed_weights: tuple[float, ...] | None = CHANGED_WEIGHTS
     feature_weight: float = 1.0
     signature_weight: float = 0.2
     symmetric: bool = True
@@ -94,11 +106,11 @@ class EngineParams:
             raise ValueError("n_candidates must be at least 1")
         if not 0.0 < self.floor < 1.0:
             raise ValueError("floor must lie in (0, 1)")
-        if self.weights is not None and len(self.weights) != len(signature_blocks(self.features)):
-            raise ValueError(
-                f"weights needs one value per signature block "
-                f"{[n for n, _ in signature_blocks(self.features)]}"
-            )
+        blocks = [n for n, _ in signature_blocks(self.features)]
+        for name in ("weights", "changed_weights"):
+            value = getattr(self, name)
+            if value is not None and len(value) != len(blocks):
+                raise ValueError(f"{name} needs one value per signature block {blocks}")
 
 
 @dataclass(frozen=True)
@@ -329,9 +341,21 @@ class TourIndex:
         self._seg_starts = starts.astype(np.int64)
         self._seg_states = sorted_states[starts]
 
-    def signature_distances(self, query: ImageFeatures) -> npt.NDArray[np.float32]:
-        """First pass: ``(n_images,) float32`` weighted signature distance to every image,
-        ``sum_t w_t ||q_t - x_t||^2``, in one matrix-vector product."""
+    def model_weights(self) -> tuple[FloatArray, ...]:
+        """``(T,)`` weights of every appearance model, in the order :meth:`query_models`
+        answers: the tour's (:meth:`set_weights`), then ``params.changed_weights`` if set."""
+        if self.params.changed_weights is None:
+            return (self._weights.copy(),)
+        return (
+            self._weights.copy(),
+            _normalise_weights(self.params.changed_weights, self._n_blocks),
+        )
+
+    def block_distances(
+        self, query: ImageFeatures, blocks: npt.NDArray[np.bool_] | None = None
+    ) -> npt.NDArray[np.float32]:
+        """``(n_images, T) float32`` squared distance of every signature block to every image
+        (``||q_t - x_t||^2``; columns of blocks not in ``blocks`` are 0)."""
         q = np.asarray(query.signature, np.float32)
         if q.shape != (self._s,):
             raise ValueError(
@@ -339,15 +363,25 @@ class TourIndex:
                 "extract the frame with the index's FeatureParams"
             )
         n = self._n
+        use = np.ones(self._n_blocks, bool) if blocks is None else blocks
         qsq = self._block_sqnorms(q[None, :])[0]
-        w32 = self._weights.astype(np.float32)
-        d = self._sqn[:n] @ w32
-        d += float(qsq @ w32)
+        out = np.zeros((n, self._n_blocks), np.float32)
         for t, (blk, (a, b)) in enumerate(zip(self._blocks, self._block_pairs(), strict=True)):
-            if w32[t] > 0:
-                d -= blk[:n] @ ((2.0 * w32[t]) * q[a:b])
-        np.maximum(d, 0.0, out=d)
-        return d
+            if use[t]:
+                col = blk[:n] @ (-2.0 * q[a:b])
+                col += self._sqn[:n, t]
+                col += qsq[t]
+                out[:, t] = col
+        np.maximum(out, 0.0, out=out)
+        return out
+
+    def signature_distances(
+        self, query: ImageFeatures, weights: npt.ArrayLike | None = None
+    ) -> npt.NDArray[np.float32]:
+        """First pass: ``(n_images,) float32`` weighted signature distance to every image,
+        ``sum_t w_t ||q_t - x_t||^2`` (``weights``: ``(T,)``, default the tour's)."""
+        w = self._weights if weights is None else _normalise_weights(weights, self._n_blocks)
+        return self.block_distances(query, w > 0) @ w.astype(np.float32)
 
     def _block_pairs(self) -> list[tuple[int, int]]:
         return [(int(a), int(b)) for a, b in zip(self._bounds[:-1], self._bounds[1:], strict=True)]
@@ -473,7 +507,8 @@ class TourIndex:
         return out
 
     def query(self, features: ImageFeatures, *, n_states: int | None = None) -> Similarity:
-        """Similarity of a frame to every stored image and every state.
+        """Similarity of a frame to every stored image and every state, with the tour's
+        weights (the first appearance model).
 
         Args:
             features: the frame's features (extracted with ``params.features``).
@@ -483,6 +518,21 @@ class TourIndex:
         Returns:
             :class:`Similarity` (see there for shapes).
         """
+        return self._query(features, n_states, (self._weights,))[0]
+
+    def query_models(
+        self, features: ImageFeatures, *, n_states: int | None = None
+    ) -> tuple[Similarity, ...]:
+        """:meth:`query` under every appearance model (:meth:`model_weights`), sharing the
+        block distances of the first pass and the corner distances of the second."""
+        return self._query(features, n_states, self.model_weights())
+
+    def _query(
+        self,
+        features: ImageFeatures,
+        n_states: int | None,
+        weight_sets: Sequence[FloatArray],
+    ) -> tuple[Similarity, ...]:
         p = self.params
         n = self._n
         max_state = int(self._state[:n].max()) if n else -1
@@ -491,7 +541,7 @@ class TourIndex:
             raise ValueError(f"n_states={ns} but the index holds state {max_state}")
         if n == 0:
             empty = np.zeros(0, np.int64)
-            return Similarity(
+            none = Similarity(
                 image=np.zeros(0),
                 state=np.full(ns, p.floor),
                 best_image=np.full(ns, -1, np.int64),
@@ -499,32 +549,49 @@ class TourIndex:
                 first_pass_ms=0.0,
                 second_pass_ms=0.0,
             )
+            return tuple(none for _ in weight_sets)
 
         t0 = time.perf_counter()
-        d = self.signature_distances(features)
+        w32 = np.stack(weight_sets).astype(np.float32)  # (M, T)
+        used = np.asarray((w32 > 0).any(axis=0), bool)
+        dists = (self.block_distances(features, used) @ w32.T).T  # (M, n)
         m = min(p.n_candidates, n)
-        top = np.argpartition(d, m - 1)[:m] if m < n else np.arange(n)
-        _, best = self._best_per_state(d)
-        cand = np.union1d(top, best).astype(np.int64)
+        cands = []
+        for d in dists:
+            top = np.argpartition(d, m - 1)[:m] if m < n else np.arange(n)
+            _, best = self._best_per_state(d)
+            cands.append(np.union1d(top, best).astype(np.int64))
+        union = functools.reduce(np.union1d, cands).astype(np.int64)
         t1 = time.perf_counter()
 
-        dist, valid = self._corner_distances(features, cand)
+        dist, valid = self._corner_distances(features, union)
         if dist is None:
-            e_feat = np.ones(len(cand), np.float64)
+            e_feat = np.ones(len(union), np.float64)
         else:
             e_feat = self._feature_errors_from(dist)
             e_feat[~valid] = 1.0
-        e = p.feature_weight * e_feat + p.signature_weight * d[cand].astype(np.float64)
-        if p.geometric and p.geometric_weight > 0:
-            g = min(p.geometric_top, len(cand))
-            verify = np.argsort(e, kind="stable")[:g]
-            e_geo = np.ones(len(cand), np.float64)
-            e_geo[verify] = self._geometric_errors(features, cand[verify], dist)
-            e = e + p.geometric_weight * e_geo
-        sim_c = _normalise_errors(e, p.floor)
+        out = []
+        for d, cand in zip(dists, cands, strict=True):
+            pos = np.searchsorted(union, cand)
+            e = p.feature_weight * e_feat[pos] + p.signature_weight * d[cand].astype(np.float64)
+            if p.geometric and p.geometric_weight > 0:
+                g = min(p.geometric_top, len(cand))
+                verify = np.argsort(e, kind="stable")[:g]
+                e_geo = np.ones(len(cand), np.float64)
+                sub = None if dist is None else dist[:, pos[verify]]
+                e_geo[verify] = self._geometric_errors(features, cand[verify], sub)
+                e = e + p.geometric_weight * e_geo
+            out.append(self._similarity(cand, _normalise_errors(e, p.floor), ns))
+        t2 = time.perf_counter()
+        return tuple(
+            dataclasses.replace(sim, first_pass_ms=(t1 - t0) * 1e3, second_pass_ms=(t2 - t1) * 1e3)
+            for sim in out
+        )
 
+    def _similarity(self, cand: IntArray, sim_c: FloatArray, ns: int) -> Similarity:
+        """The :class:`Similarity` of the candidates' similarities ``sim_c`` (timings 0)."""
         image = self._spread(cand, sim_c, ns)
-        state = np.full(ns, p.floor, np.float64)
+        state = np.full(ns, self.params.floor, np.float64)
         np.maximum.at(state, self._state[cand], sim_c)
         best_image = np.full(ns, -1, np.int64)
         # best image of each state = its best candidate (every state has one candidate)
@@ -533,14 +600,13 @@ class TourIndex:
         firsts = np.r_[True, cs[1:] != cs[:-1]]
         best_image[cs[firsts]] = cand[order][firsts]
         ranked = cand[np.argsort(-sim_c, kind="stable")]
-        t2 = time.perf_counter()
         return Similarity(
             image=image,
             state=state,
             best_image=best_image,
             candidates=ranked,
-            first_pass_ms=(t1 - t0) * 1e3,
-            second_pass_ms=(t2 - t1) * 1e3,
+            first_pass_ms=0.0,
+            second_pass_ms=0.0,
         )
 
     def _spread(self, cand: IntArray, sim_c: FloatArray, n_states: int) -> FloatArray:
@@ -562,132 +628,3 @@ def _normalise_errors(e: FloatArray, floor: float) -> FloatArray:
     if hi - lo <= 1e-12:
         return np.ones_like(e)
     return np.maximum(1.0 - (e - lo) / (hi - lo), floor)
-
-
-# ------------------------------------------------------------------------------ weights
-
-
-@dataclass(frozen=True)
-class LearnParams:
-    """Gradient descent of the signature weights (001 section 5.2).
-
-    Attributes:
-        min_images: fewer images than this -> :func:`default_weights`.
-        min_states: fewer states with at least two images than this -> defaults.
-        positive_window: a positive pair is two images of the same state at most this many
-            places apart in insertion order (images along an edge change as the robot moves).
-        n_anchors: anchors sampled per run.
-        n_negatives: images of other states compared with each anchor.
-        iterations, learning_rate: projected gradient descent on the simplex.
-        temperature: softness of the triplet loss (signature distance units).
-        margin: required gap between negative and positive distance.
-        prior: pull towards the default weights (L2), keeps small tours sane.
-        seed: random seed (learning is deterministic for a given tour).
-    """
-
-    min_images: int = 20
-    min_states: int = 2
-    positive_window: int = 3
-    n_anchors: int = 2000
-    n_negatives: int = 64
-    iterations: int = 300
-    learning_rate: float = 0.05
-    temperature: float = 0.05
-    margin: float = 0.05
-    prior: float = 0.05
-    seed: int = 0
-
-
-def learn_weights(
-    signatures_or_index: npt.ArrayLike | TourIndex,
-    states: npt.ArrayLike | None = None,
-    *,
-    params: EngineParams = EngineParams(),
-    learn: LearnParams = LearnParams(),
-) -> FloatArray:
-    """Learn the signature block weights of one tour.
-
-    Minimises the mean soft triplet loss ``softplus((w.d_pos - w.d_neg + margin) / T)`` over
-    anchors, positives (same state, at most ``positive_window`` apart in insertion order) and
-    negatives (other states), plus ``prior * ||w - w_default||^2``, by projected gradient
-    descent with ``w >= 0, sum(w) = 1``.
-
-    Args:
-        signatures_or_index: ``(n, S)`` signatures or a :class:`TourIndex` (then ``states``
-            may be omitted).
-        states: ``(n,)`` int upper state of each image.
-        params: engine parameters (for the signature layout).
-        learn: optimiser settings and the too-small thresholds.
-
-    Returns:
-        ``(T,) float64`` weights summing to 1; :func:`default_weights` when the tour is too small
-        (fewer than ``learn.min_images`` images or ``learn.min_states`` states with two images).
-    """
-    if isinstance(signatures_or_index, TourIndex):
-        sig = np.asarray(signatures_or_index.signatures, np.float64)
-        st = signatures_or_index.states if states is None else np.asarray(states, np.int64)
-    else:
-        sig = np.asarray(signatures_or_index, np.float64)
-        if states is None:
-            raise ValueError("give the state of every image")
-        st = np.asarray(states, np.int64).ravel()
-    w0 = default_weights(params.features)
-    if params.weights is not None:
-        w0 = _normalise_weights(params.weights, len(w0))
-    n = len(sig)
-    if sig.ndim != 2 or len(st) != n:
-        raise ValueError(f"signatures {sig.shape} and states {st.shape} do not match")
-    if n < learn.min_images:
-        return w0
-    bounds = _block_bounds(params.features)
-    if sig.shape[1] != bounds[-1]:
-        raise ValueError(f"signatures have {sig.shape[1]} values, expected {bounds[-1]}")
-
-    # positive pairs: same state, close in insertion order
-    idx = np.arange(n)
-    pairs_a: list[IntArray] = []
-    pairs_b: list[IntArray] = []
-    for off in range(1, learn.positive_window + 1):
-        same = st[off:] == st[:-off]
-        pairs_a.append(idx[:-off][same])
-        pairs_b.append(idx[off:][same])
-    pa = np.concatenate(pairs_a) if pairs_a else np.zeros(0, np.int64)
-    pb = np.concatenate(pairs_b) if pairs_b else np.zeros(0, np.int64)
-    multi = np.unique(st[pa]) if len(pa) else np.zeros(0, np.int64)
-    if len(multi) < learn.min_states or len(np.unique(st)) < 2:
-        return w0
-
-    rng = np.random.default_rng(learn.seed)
-    pick = rng.choice(len(pa), size=min(learn.n_anchors, len(pa)), replace=False)
-    a, b = pa[pick], pb[pick]
-    neg = rng.integers(0, n, size=(len(a), learn.n_negatives))
-    ok = st[neg] != st[a][:, None]  # (M, Nn) which negatives really are negatives
-
-    def blocks(x: IntArray, y: npt.NDArray[np.int64]) -> FloatArray:
-        diff = sig[y] - sig[x][:, None, :] if y.ndim == 2 else sig[y] - sig[x]
-        sq = diff * diff
-        return np.add.reduceat(sq, bounds[:-1], axis=-1)
-
-    d_pos = blocks(a, b)  # (M, T)
-    d_neg = blocks(a, neg)  # (M, Nn, T)
-    delta = d_pos[:, None, :] - d_neg  # (M, Nn, T)
-    weight = ok.astype(np.float64) / max(int(ok.sum()), 1)
-    w = w0.copy()
-    for it in range(learn.iterations):
-        step = learn.learning_rate / np.sqrt(1.0 + it)
-        z = (delta @ w + learn.margin) / learn.temperature
-        s = 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))  # d softplus / dz
-        grad = np.einsum("mn,mnt->t", s * weight, delta) / learn.temperature
-        grad += 2.0 * learn.prior * (w - w0)
-        w = _project_simplex(w - step * grad / max(np.abs(grad).max(), 1e-12))
-    return w
-
-
-def _project_simplex(v: FloatArray) -> FloatArray:
-    """Euclidean projection onto ``{w >= 0, sum w = 1}``."""
-    u = np.sort(v)[::-1]
-    css = np.cumsum(u) - 1.0
-    k = np.arange(1, len(v) + 1)
-    rho = int(np.nonzero(u - css / k > 0)[0][-1])
-    theta = css[rho] / (rho + 1.0)
-    return np.maximum(v - theta, 0.0)
