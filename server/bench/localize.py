@@ -13,7 +13,12 @@ reference frame picked by
 * ``smoother``: the fixed-lag smoother's re-estimate of the frame at the *oldest* end of its
   window (``lag - 1`` frames after it was seen; the final frames use the last window),
 
-and scores them against the ground truth within a tolerance (in frames). It also runs the
+and scores them against the ground truth within a tolerance (in frames): ``--tolerance`` and
+always 0, 2 and 10 (``recall_at``; the replay does not depend on the tolerance), over the whole
+run and over each half of its query frames (``halves``). ``--both-directions`` runs it again with
+the traversals swapped (the ground truth inverted); ``--half first|second`` replays only one half
+of the query traversal against the part of the reference its ground truth covers, so that
+parameters can be chosen on one half and reported on the other. It also runs the
 Table 1 protocol of 001 section 9.2 (every other reference frame held out as a query against a
 tour of the others; error rate of ``argmax_s sim(s)``), times the engine and the belief + policy
 step separately, and times the belief + policy step on a synthetic tour of 10 000 images.
@@ -22,11 +27,12 @@ step separately, and times the belief + policy step on a synthetic tour of 10 00
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -42,6 +48,7 @@ if TYPE_CHECKING:
     from server.domain import TourGraph
     from server.vision.features import ImageFeatures
     from server.vision.index import EngineParams, TourIndex
+    from server.vision.learning import LearnParams
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -49,6 +56,12 @@ Image = npt.NDArray[np.uint8]
 
 #: tolerances of the recall curve stored in the JSON and plotted
 CURVE_TOLERANCES = tuple(range(21))
+#: tolerances (frames) every run is scored at, besides its ``--tolerance``
+REPORT_TOLERANCES = (0, 2, 10)
+#: values of ``--half``: which half of the query traversal a run replays
+HALVES = ("first", "second", "all")
+#: the three estimates scored per query frame
+METHODS = ("ir_only", "tracker", "smoother")
 #: frame period and speed of the synthetic teaching run
 FRAME_DT = 0.1
 SPEED = 1.0
@@ -71,6 +84,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--tolerance", type=int, default=0, help="frames of slack around the truth (default 0)"
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument(
+        "--both-directions",
+        action="store_true",
+        help="after reference -> query, run again with the traversals swapped (the query "
+        "folder taught, the reference folder replayed; a ground-truth file is inverted)",
+    )
+    parser.add_argument(
+        "--half",
+        choices=HALVES,
+        default="all",
+        help="replay only the first or second half of the query traversal against the part of "
+        "the reference its ground truth covers (choose parameters on 'first', report 'second' "
+        "and 'all'; default all)",
+    )
     parser.add_argument(
         "--location-every", type=int, default=10, help="a location every M frames (default 10)"
     )
@@ -100,6 +127,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="signature block weights (hist, thumb, desc_mean, desc_var, patch): 'learned' on "
         "the reference tour as the server does, 'default' (engine defaults), 'patch' (the "
         "patch-normalised thumbnail only) or five comma-separated numbers (default learned)",
+    )
+    parser.add_argument(
+        "--appearance",
+        choices=("models", "single"),
+        default="models",
+        help="'models': the engine's appearance models (the weights above and the change-robust "
+        "ones) weighed by the tracker, as the server does; 'single': the weights above alone "
+        "(default models)",
+    )
+    parser.add_argument(
+        "--learn-changed",
+        type=int,
+        default=0,
+        metavar="N",
+        help="learn the weights also on N tour images under random changes of light "
+        "(LearnParams.changed_images; default 0, see docs/localize.md)",
     )
     parser.add_argument("--lag", type=int, default=10, help="smoother window (default 10)")
     parser.add_argument(
@@ -164,6 +207,73 @@ class GroundTruth:
 
     def has_truth(self, query: int) -> bool:
         return self.matches is None or bool(self.matches.get(query))
+
+    def inverted(self) -> GroundTruth:
+        """The truth with the traversals swapped: same-index stays same-index, a listed map
+        ``query -> references`` becomes ``reference -> queries`` (:func:`invert_matches`)."""
+        if self.matches is None:
+            return self
+        return GroundTruth(invert_matches(self.matches))
+
+    def covered(self, query_frames: Sequence[int]) -> list[int]:
+        """The reference frames listed for ``query_frames`` (same-index: the frames themselves),
+        sorted, without repeats."""
+        if self.matches is None:
+            return sorted(set(query_frames))
+        return sorted({r for q in query_frames for r in self.matches.get(q, ())})
+
+
+def invert_matches(matches: Mapping[int, Sequence[int]]) -> dict[int, tuple[int, ...]]:
+    """Swap the roles of the traversals in a ground-truth map.
+
+    ``matches``: query frame -> its matching reference frames. Returns reference frame -> the
+    query frames that list it (sorted). A reference frame no query lists has no entry (it is not
+    scored when it is replayed as a query), nor has a query with an empty list; so
+    ``invert_matches(invert_matches(m))`` is ``m`` without its empty entries (lists sorted).
+    """
+    out: dict[int, set[int]] = {}
+    for q, refs in matches.items():
+        for r in refs:
+            out.setdefault(int(r), set()).add(int(q))
+    return {r: tuple(sorted(qs)) for r, qs in sorted(out.items())}
+
+
+def half_frames(frames: Sequence[int], half: str) -> list[int]:
+    """``first``: ``frames[: n // 2]``; ``second``: ``frames[n // 2 :]``; ``all``: all of them."""
+    n = len(frames)
+    if half == "first":
+        return list(frames[: n // 2])
+    if half == "second":
+        return list(frames[n // 2 :])
+    if half == "all":
+        return list(frames)
+    raise ValueError(f"half must be one of {', '.join(HALVES)}, got {half!r}")
+
+
+def select_half(
+    query_frames: Sequence[int], reference_frames: Sequence[int], gt: GroundTruth, half: str
+) -> tuple[list[int], list[int]]:
+    """The frames a ``--half`` run replays: ``(query frames, reference frames)``.
+
+    The query frames are that half of ``query_frames`` (:func:`half_frames`); the reference
+    frames are those of ``reference_frames`` from the smallest to the largest reference frame
+    the ground truth lists for them (same-index: the same frames, so the same half of both when
+    the traversals are equally long). Frame numbers stay the original ones, so ``gt`` applies
+    unchanged. ``half == "all"`` returns both lists whole. ``ValueError`` when the ground truth
+    lists nothing for that half or none of it is among ``reference_frames``.
+    """
+    qry = half_frames(query_frames, half)
+    if half == "all":
+        return qry, list(reference_frames)
+    covered = gt.covered(qry)
+    ref = [r for r in reference_frames if covered and covered[0] <= r <= covered[-1]]
+    if not ref:
+        raise ValueError(
+            f"the ground truth lists no reference frame for the {half} half of the query "
+            f"traversal (frames {qry[0] if qry else '-'}..{qry[-1] if qry else '-'}); "
+            "check --gt, --limit and --skip-first"
+        )
+    return qry, ref
 
 
 # ------------------------------------------------------------------------------ tour
@@ -270,23 +380,24 @@ def make_index(
     *,
     learn: bool = True,
     image_of: Callable[[int], Image] | None = None,
+    learn_params: LearnParams | None = None,
 ) -> TourIndex:
     """The tour's engine index with weights learned on it, as the navigation service does.
 
     ``feats[p]`` are the features of image id ``p`` (the tour's ``p``-th reference frame, as
     :func:`build_tour` numbers them) and ``image_of(p)`` its image (for the changed-light views
-    the learning makes; ``None``: learn from the features alone); the index holds them in
-    canonical image order.
+    the learning makes with ``learn_params.changed_images`` > 0; ``None``: learn from the
+    features alone); the index holds them in canonical image order.
     """
     from server.vision.index import TourIndex
-    from server.vision.learning import learn_tour_weights
+    from server.vision.learning import LearnParams, learn_tour_weights
 
     index = TourIndex(params)
     ids = [int(i) for i in graph.image_ids]
     index.add([feats[p] for p in ids], graph.image_state)
     if learn:
         source = None if image_of is None else (lambda i: image_of(ids[i]))
-        index.set_weights(learn_tour_weights(index, source))
+        index.set_weights(learn_tour_weights(index, source, learn=learn_params or LearnParams()))
     return index
 
 
@@ -349,6 +460,9 @@ class Replay:
     smooth_ms: list[float] = field(default_factory=list)
     engine_ms: list[float] = field(default_factory=list)
     extract_ms: list[float] = field(default_factory=list)
+    changed: list[float] = field(default_factory=list)
+    """Per frame, the tracker's belief that the change-robust appearance model holds (0 with
+    one model)."""
 
 
 def next_action(decision_action: Action, mode: str) -> Action:
@@ -397,8 +511,9 @@ def replay(
         t0 = time.perf_counter()
         feats = extract(img, fp)
         t1 = time.perf_counter()
-        sim = index.query(feats, n_states=graph.n_states)
-        lik = fine_likelihood(sim.image, graph)
+        sims = index.query_models(feats, n_states=graph.n_states)
+        lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
+        sim = sims[0]  # ir_only: retrieval with the tour's own weights
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT)
         decision = decide(graph, summary.belief, goal, costs)
@@ -415,6 +530,7 @@ def replay(
                     smoothed[k] = int(tour.fine_frame[int(f)])
         out.query.append(int(qf))
         out.ir_only.append(int(tour.image_frame[int(np.argmax(sim.image))]))
+        out.changed.append(float(summary.appearance[-1]) if len(sims) > 1 else 0.0)
         out.tracker.append(int(tour.fine_frame[int(np.argmax(summary.belief))]))
         out.localised_frames.append(
             tour.state_frames[summary.localised_state]
@@ -448,6 +564,55 @@ def score(err: FloatArray, tolerance: int) -> dict[str, float]:
         "recall@1": float(np.mean(err[ok] <= tolerance)),
         "mean_error_frames": float(np.mean(err[ok])),
     }
+
+
+def score_at(err: FloatArray, tolerances: Sequence[int]) -> dict[str, dict[str, float]]:
+    """:func:`score` at every tolerance at once: ``{str(t): {"recall@1", "mean_error_frames"}}``.
+
+    ``err``: ``(n,)`` errors in frames, ``inf`` for frames without a truth (not scored).
+    """
+    ok = np.isfinite(err)
+    tol = np.asarray(tolerances, np.float64)
+    if not ok.any():
+        nan = {"recall@1": float("nan"), "mean_error_frames": float("nan")}
+        return {str(int(t)): dict(nan) for t in tolerances}
+    recall = np.mean(err[ok][:, None] <= tol[None, :], axis=0)
+    mean = float(np.mean(err[ok]))
+    return {
+        str(int(t)): {"recall@1": float(r), "mean_error_frames": mean}
+        for t, r in zip(tolerances, recall, strict=True)
+    }
+
+
+def recall_at(
+    errs: Mapping[str, FloatArray], tolerances: Sequence[int]
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Per tolerance, per method: ``{str(t): {method: {"recall@1", "mean_error_frames"}}}``.
+
+    ``errs``: method -> ``(n,)`` errors in frames of the same query frames. The mean error does
+    not depend on the tolerance; it is repeated so that every entry has :func:`score`'s shape.
+    """
+    per_method = {name: score_at(e, tolerances) for name, e in errs.items()}
+    return {
+        str(int(t)): {name: s[str(int(t))] for name, s in per_method.items()} for t in tolerances
+    }
+
+
+def report_tolerances(tolerance: int) -> list[int]:
+    """:data:`REPORT_TOLERANCES` and the run's own ``tolerance``, sorted."""
+    return sorted({*REPORT_TOLERANCES, int(tolerance)})
+
+
+def halves_scores(errs: Mapping[str, FloatArray], tolerances: Sequence[int]) -> dict[str, Any]:
+    """:func:`recall_at` on the first and on the second half of a run's query frames (split as
+    :func:`half_frames` splits them): ``{"first": {"frames", "recall_at"}, "second": ...}``."""
+    n = len(next(iter(errs.values()))) if errs else 0
+    out: dict[str, Any] = {}
+    for half in ("first", "second"):
+        pos = half_frames(range(n), half)
+        part = {name: e[pos] for name, e in errs.items()}
+        out[half] = {"frames": len(pos), "recall_at": recall_at(part, tolerances)}
+    return out
 
 
 def converged_after(right: npt.NDArray[np.bool_], window: int = 20) -> dict[str, int | None]:
@@ -655,56 +820,78 @@ def plot_belief(result: Replay, gt: GroundTruth, title: str, path: Path) -> None
 # ------------------------------------------------------------------------------ run
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the benchmark described in the module doc; 0 on success, 2 on bad input."""
-    import cv2
+@dataclass(frozen=True)
+class RunSettings:
+    """How every direction of one invocation is run (from the command line).
 
-    from server.belief.model import TransitionParams
-    from server.belief.tracker import TrackerParams
-    from server.bench._retrieval_impl import limit_blas_threads
+    ``location_every``: frames per location of the taught tour; ``learn``: learn the signature
+    weights on each direction's reference tour (``--weights learned``); ``action``: ``"policy"``
+    or ``"navigate"`` (see :func:`next_action`); ``learn_params``: how they are learned.
+    """
+
+    location_every: int
+    engine: EngineParams
+    learn: bool
+    transitions: TransitionParams
+    tracker: TrackerParams
+    action: str
+    learn_params: LearnParams = field(default_factory=lambda: _learn_params(0))
+
+
+@dataclass(frozen=True)
+class DirectionPlan:
+    """What one direction of an invocation replays.
+
+    ``reference`` is taught, ``query`` replayed; ``ref_frames`` / ``qry_frames`` are the
+    original frame numbers used (after ``--skip-first``, ``--limit`` and ``--half``); ``gt``
+    maps query frames to reference frames, ``gt_spec`` describes it in the JSON.
+    """
+
+    name: str
+    reference: Path
+    query: Path
+    gt: GroundTruth
+    gt_spec: str
+    ref_frames: list[int]
+    qry_frames: list[int]
+
+
+@dataclass(frozen=True)
+class DirectionRun:
+    """One direction's replay: ``errors`` maps each method to ``(len(plan.qry_frames),)``
+    float64 errors in frames (``inf`` where the query frame has no truth); ``build_s``: seconds
+    to extract the reference and build its index."""
+
+    plan: DirectionPlan
+    tour: Tour
+    index: TourIndex
+    ref_feats: list[ImageFeatures]
+    replay: Replay
+    errors: dict[str, FloatArray]
+    build_s: float
+
+
+def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
+    """Teach the plan's reference frames, replay its query frames, score every estimate."""
     from server.vision.features import extract
-    from server.vision.index import EngineParams
 
-    cv2.setNumThreads(1)
-    limit_blas_threads(1)
-    for folder in (args.reference, args.query):
-        if not folder.is_dir():
-            print(f"no frames at {folder}")
-            return 2
-    ref_files = list_frames(args.reference)
-    qry_files = list_frames(args.query)
-    gt = GroundTruth.parse(args.gt)
-    lo = max(0, int(args.skip_first))
-    hi_r, hi_q = len(ref_files), len(qry_files)
-    if args.limit is not None:
-        hi_r, hi_q = min(hi_r, lo + args.limit), min(hi_q, lo + args.limit)
-    ref_frames = list(range(lo, hi_r))
-    qry_frames = list(range(lo, hi_q))
-    if len(ref_frames) < 2 or not qry_frames:
-        print("not enough frames")
-        return 2
-    try:
-        weights = parse_weights(args.weights)
-    except ValueError as exc:
-        print(exc)
-        return 2
-    learn = args.weights == "learned"
-    params = EngineParams(weights=weights)
-    transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
-    tracker_params = TrackerParams(smoother_lag=args.lag, likelihood_power=args.likelihood_power)
+    ref_files, qry_files = list_frames(plan.reference), list_frames(plan.query)
+    ref_frames, qry_frames = plan.ref_frames, plan.qry_frames
     print(
-        f"reference {args.reference} frames {lo}..{hi_r - 1}, query {args.query} frames "
-        f"{lo}..{hi_q - 1}, a location every {args.location_every}, tolerance {args.tolerance}"
+        f"{plan.name}: reference {plan.reference} frames {ref_frames[0]}..{ref_frames[-1]}, "
+        f"query {plan.query} frames {qry_frames[0]}..{qry_frames[-1]}, a location every "
+        f"{settings.location_every}"
     )
     t0 = time.perf_counter()
-    ref_feats = [extract(read_image(ref_files[k]), params.features) for k in ref_frames]
-    tour = build_tour(ref_frames, args.location_every)
+    ref_feats = [extract(read_image(ref_files[k]), settings.engine.features) for k in ref_frames]
+    tour = build_tour(ref_frames, settings.location_every)
     index = make_index(
         ref_feats,
         tour.graph,
-        params,
-        learn=learn,
+        settings.engine,
+        learn=settings.learn,
         image_of=lambda p: read_image(ref_files[ref_frames[p]]),
+        learn_params=settings.learn_params,
     )
     build_s = time.perf_counter() - t0
     qry_images = [read_image(qry_files[k]) for k in qry_frames]
@@ -713,49 +900,185 @@ def run(args: argparse.Namespace) -> int:
         index,
         qry_frames,
         qry_images,
-        transitions=transitions,
-        tracker_params=tracker_params,
-        action_mode=args.action,
+        transitions=settings.transitions,
+        tracker_params=settings.tracker,
+        action_mode=settings.action,
+    )
+    estimates = {"ir_only": res.ir_only, "tracker": res.tracker, "smoother": res.smoother}
+    errs = {m: errors(res.query, estimates[m], plan.gt) for m in METHODS}
+    return DirectionRun(plan, tour, index, ref_feats, res, errs, build_s)
+
+
+def per_frame(res: Replay) -> dict[str, Any]:
+    """The per query frame estimates of a replay, as the JSON stores them."""
+    return {
+        "query": res.query,
+        "ir_only": res.ir_only,
+        "tracker": res.tracker,
+        "smoother": res.smoother,
+        "localised": [f is not None for f in res.localised_frames],
+        "localised_span": [None if f is None else [min(f), max(f)] for f in res.localised_frames],
+    }
+
+
+def direction_summary(
+    d: DirectionRun, *, tolerance: int, weights: str, halves: bool
+) -> dict[str, Any]:
+    """One entry of the JSON's ``directions``: recall at :func:`report_tolerances`, convergence
+    and wrong localised runs at ``tolerance``, the weights used, the frames; with ``halves``
+    also :func:`halves_scores` (for a run over the whole traversal)."""
+    from server.vision.features import signature_blocks
+
+    tols = report_tolerances(tolerance)
+    conv = converged_after(d.errors["tracker"] <= tolerance)
+    res, plan = d.replay, d.plan
+    out: dict[str, Any] = {
+        "reference": str(plan.reference),
+        "query": str(plan.query),
+        "gt": plan.gt_spec,
+        "tolerance": tolerance,
+        "frames": len(plan.qry_frames),
+        "query_span": [plan.qry_frames[0], plan.qry_frames[-1]],
+        "scored_frames": int(np.isfinite(d.errors["tracker"]).sum()),
+        "reference_frames": len(plan.ref_frames),
+        "reference_span": [plan.ref_frames[0], plan.ref_frames[-1]],
+        "tour": {
+            "locations": d.tour.graph.n_locations,
+            "edges": d.tour.graph.n_edges,
+            "images": d.tour.graph.n_images,
+        },
+        "recall_at": recall_at(d.errors, tols),
+        "converged_after": conv["first_run"],
+        "stays_right_after": conv["stays_right"],
+        "max_wrong_localised_run": max_wrong_localised_run(
+            res.query, res.localised_frames, plan.gt, tolerance
+        ),
+        "localised_fraction": float(np.mean([f is not None for f in res.localised_frames])),
+        "weights": weights,
+        "weights_used": [round(float(x), 4) for x in d.index.weights],
+        "weight_blocks": [b for b, _ in signature_blocks(d.index.params.features)],
+        "appearance_models": [[round(float(x), 4) for x in w] for w in d.index.model_weights()],
+        "changed_model_mean": float(np.mean(res.changed)) if res.changed else 0.0,
+        "build_s": d.build_s,
+        "per_frame": per_frame(res),
+    }
+    if halves:
+        out["halves"] = halves_scores(d.errors, tols)
+    return out
+
+
+def plan_directions(
+    args: argparse.Namespace, gt: GroundTruth, ref_frames: list[int], qry_frames: list[int]
+) -> list[DirectionPlan]:
+    """The forward run and, with ``--both-directions``, the reverse one (the traversals
+    swapped, the ground truth inverted), each restricted to ``--half``; ``ValueError`` if a
+    run would have too few frames."""
+    qry, ref = select_half(qry_frames, ref_frames, gt, args.half)
+    plans = [DirectionPlan("forward", args.reference, args.query, gt, args.gt, ref, qry)]
+    if args.both_directions:
+        inv = gt.inverted()
+        qry, ref = select_half(ref_frames, qry_frames, inv, args.half)
+        spec = args.gt if gt.matches is None else f"{args.gt} (inverted)"
+        plans.append(DirectionPlan("reverse", args.query, args.reference, inv, spec, ref, qry))
+    for plan in plans:
+        if len(plan.ref_frames) < 2 or not plan.qry_frames:
+            raise ValueError(f"not enough frames for the {plan.name} run")
+    return plans
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark described in the module doc; 0 on success, 2 on bad input."""
+    import cv2
+
+    from server.belief.model import TransitionParams
+    from server.belief.tracker import TrackerParams
+    from server.bench._retrieval_impl import limit_blas_threads
+    from server.vision.index import EngineParams
+
+    cv2.setNumThreads(1)
+    limit_blas_threads(1)
+    for folder in (args.reference, args.query):
+        if not folder.is_dir():
+            print(f"no frames at {folder}")
+            return 2
+    gt = GroundTruth.parse(args.gt)
+    lo = max(0, int(args.skip_first))
+    hi_r, hi_q = len(list_frames(args.reference)), len(list_frames(args.query))
+    if args.limit is not None:
+        hi_r, hi_q = min(hi_r, lo + args.limit), min(hi_q, lo + args.limit)
+    if hi_r - lo < 2 or hi_q <= lo:
+        print("not enough frames")
+        return 2
+    try:
+        weights = parse_weights(args.weights)
+        plans = plan_directions(args, gt, list(range(lo, hi_r)), list(range(lo, hi_q)))
+    except ValueError as exc:
+        print(exc)
+        return 2
+    learn = args.weights == "learned"
+    params = EngineParams(weights=weights)
+    if args.appearance == "single":
+        params = dataclasses.replace(params, changed_weights=None)
+    transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
+    tracker_params = TrackerParams(smoother_lag=args.lag, likelihood_power=args.likelihood_power)
+    settings = RunSettings(
+        args.location_every,
+        params,
+        learn,
+        transitions,
+        tracker_params,
+        args.action,
+        _learn_params(args.learn_changed),
     )
     tol = int(args.tolerance)
-    methods = {"ir_only": res.ir_only, "tracker": res.tracker, "smoother": res.smoother}
-    errs = {name: errors(res.query, est, gt) for name, est in methods.items()}
+    print(f"tolerance {tol}, half {args.half}")
+    runs = [run_direction(plan, settings) for plan in plans]
+    summaries = {
+        d.plan.name: direction_summary(
+            d, tolerance=tol, weights=args.weights, halves=args.half == "all"
+        )
+        for d in runs
+    }
+    fwd, f = runs[0], summaries["forward"]
+    res = fwd.replay
     result: dict[str, Any] = {
         "reference": str(args.reference),
         "query": str(args.query),
         "gt": args.gt,
         "tolerance": tol,
-        "frames": len(qry_frames),
-        "first_frame": lo,
-        "reference_frames": len(ref_frames),
+        "half": args.half,
+        "both_directions": bool(args.both_directions),
+        "frames": len(fwd.plan.qry_frames),
+        "first_frame": fwd.plan.qry_frames[0],
+        "reference_frames": len(fwd.plan.ref_frames),
         "location_every": args.location_every,
-        "tour": {
-            "locations": tour.graph.n_locations,
-            "edges": tour.graph.n_edges,
-            "images": tour.graph.n_images,
-        },
+        "tour": f["tour"],
         "transitions": args.transitions,
         "weights": args.weights,
-        "weights_used": [round(float(x), 4) for x in index.weights],
+        "weights_used": f["weights_used"],
+        "appearance_models": f["appearance_models"],
+        "changed_model_mean": f["changed_model_mean"],
+        "weight_blocks": f["weight_blocks"],
         "action": args.action,
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
         "likelihood_power": args.likelihood_power,
-        "build_s": build_s,
+        "build_s": fwd.build_s,
     }
-    for name, e in errs.items():
+    for name, e in fwd.errors.items():
         result[name] = score(e, tol)
-    right = errs["tracker"] <= tol
-    conv = converged_after(right)
-    result["converged_after"] = conv["first_run"]
-    result["stays_right_after"] = conv["stays_right"]
-    result["max_wrong_localised_run"] = max_wrong_localised_run(
-        res.query, res.localised_frames, gt, tol
-    )
-    result["localised_fraction"] = float(np.mean([f is not None for f in res.localised_frames]))
+    result["recall_at"] = f["recall_at"]
+    if "halves" in f:
+        result["halves"] = f["halves"]
+    for key in ("converged_after", "stays_right_after", "max_wrong_localised_run"):
+        result[key] = f[key]
+    result["localised_fraction"] = f["localised_fraction"]
     result["recall_curve"] = {
         "tolerance": list(CURVE_TOLERANCES),
-        **{name: [score(e, t)["recall@1"] for t in CURVE_TOLERANCES] for name, e in errs.items()},
+        **{
+            name: [s["recall@1"] for s in score_at(e, CURVE_TOLERANCES).values()]
+            for name, e in fwd.errors.items()
+        },
     }
     step = stats(res.step_ms[5:])
     result["step_ms_p50"] = step["p50"]
@@ -764,7 +1087,7 @@ def run(args: argparse.Namespace) -> int:
     result["engine_ms"] = stats(res.engine_ms)
     result["extract_ms"] = stats(res.extract_ms)
     if not args.no_table1:
-        t1 = table1(ref_feats, args.location_every, params, learn=learn)
+        t1 = table1(fwd.ref_feats, args.location_every, params, learn=learn)
         result["table1_error_rate"] = t1["error_rate"]
         result["table1"] = t1
     if args.size_10k > 0:
@@ -773,18 +1096,14 @@ def run(args: argparse.Namespace) -> int:
         )
         result["step_ms_p50_10k"] = big["step_ms"]["p50"]
         result["step_10k"] = big
-    result["per_frame"] = {
-        "query": res.query,
-        "ir_only": res.ir_only,
-        "tracker": res.tracker,
-        "smoother": res.smoother,
-        "localised": [f is not None for f in res.localised_frames],
-        "localised_span": [None if f is None else [min(f), max(f)] for f in res.localised_frames],
-    }
+    result["per_frame"] = f["per_frame"]
+    result["directions"] = summaries
     _print(result)
     name = f"{args.query.name} -> {args.reference.name}"  # query -> reference
     if args.plot is not None:
-        plot_belief(res, gt, f"{name}: belief over time ({len(qry_frames)} frames)", args.plot)
+        plot_belief(
+            res, fwd.plan.gt, f"{name}: belief over time ({len(res.query)} frames)", args.plot
+        )
         print(f"saved {args.plot}")
     if args.recall_plot is not None:
         curves = {k: v for k, v in result["recall_curve"].items() if k != "tolerance"}
@@ -795,38 +1114,76 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print(r: dict[str, Any]) -> None:
-    print(f"{r['frames']} query frames, tolerance {r['tolerance']}:")
-    for name in ("ir_only", "tracker", "smoother"):
-        s = r[name]
+    for name, d in r["directions"].items():
+        blocks = ", ".join(
+            f"{b} {w:.2f}" for b, w in zip(d["weight_blocks"], d["weights_used"], strict=True)
+        )
         print(
-            f"  {name:9s} recall@1 {s['recall@1']:.3f}  mean error "
-            f"{s['mean_error_frames']:.2f} frames"
+            f"{name}: {Path(d['query']).name} -> {Path(d['reference']).name}, "
+            f"{d['frames']} query frames ({d['scored_frames']} with a truth), "
+            f"{d['reference_frames']} reference frames; weights {d['weights']} ({blocks})"
+        )
+        _print_recall(d["recall_at"], "  ")
+        for half, h in d.get("halves", {}).items():
+            at = h["recall_at"]
+            cells = ", ".join(
+                f"{m} " + "/".join(f"{at[t][m]['recall@1']:.3f}" for t in at) for m in METHODS
+            )
+            print(f"  {half} half ({h['frames']} frames), recall@1 at {'/'.join(at)}: {cells}")
+        print(
+            f"  converged after {d['converged_after']} frames (stays right after "
+            f"{d['stays_right_after']}), max wrong localised run "
+            f"{d['max_wrong_localised_run']} (tolerance {d['tolerance']})"
         )
     print(
-        f"  converged after {r['converged_after']} frames (stays right after "
-        f"{r['stays_right_after']}), max wrong localised run {r['max_wrong_localised_run']}"
-    )
-    print(
-        f"  belief + policy step p50 {r['step_ms_p50']:.3f} ms, engine p50 "
-        f"{r['engine_ms']['p50']:.2f} ms/frame"
+        f"belief + policy step p50 {r['step_ms_p50']:.3f} ms, engine p50 "
+        f"{r['engine_ms']['p50']:.2f} ms/frame (forward)"
     )
     if "table1_error_rate" in r:
-        print(f"  Table 1 protocol error rate {r['table1_error_rate']:.3f}")
+        print(f"Table 1 protocol error rate {r['table1_error_rate']:.3f}")
     if "step_ms_p50_10k" in r:
         print(
-            f"  belief + policy step p50 at {r['step_10k']['images']} images: "
+            f"belief + policy step p50 at {r['step_10k']['images']} images: "
             f"{r['step_ms_p50_10k']:.3f} ms"
         )
 
 
+def _print_recall(at: dict[str, dict[str, dict[str, float]]], indent: str) -> None:
+    """Recall@1 (mean error in frames) per tolerance and method."""
+    print(indent + "tol  " + "".join(f"{m:>20s}" for m in METHODS) + "   recall@1 (mean error)")
+    for tol, scores in at.items():
+        cells = "".join(
+            f"{scores[m]['recall@1']:>10.3f} ({scores[m]['mean_error_frames']:7.2f})"
+            for m in METHODS
+        )
+        print(f"{indent}{tol:>3s}  {cells}")
+
+
 __all__ = [
+    "DirectionPlan",
+    "DirectionRun",
     "GroundTruth",
     "Replay",
+    "RunSettings",
     "Tour",
     "add_arguments",
     "bench_transitions",
     "build_tour",
+    "half_frames",
+    "invert_matches",
+    "plan_directions",
+    "recall_at",
     "replay",
     "run",
+    "run_direction",
+    "score_at",
+    "select_half",
     "table1",
 ]
+
+
+def _learn_params(changed_images: int) -> LearnParams:
+    """Learning as the server does, with ``changed_images`` changed-light views."""
+    from server.vision.learning import LearnParams
+
+    return LearnParams(changed_images=changed_images)
