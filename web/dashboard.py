@@ -1071,8 +1071,25 @@ def _action_text(step: StepView, graph: TourGraph) -> str:
         f"**Action: {step.action}**{where} ({step.behaviour}) - v {step.v:.2f} m/s, "
         f"w {step.w:.2f} rad/s\n\n{why}"
         f"Top states: {top}\n\n"
-        f"Entropy **{step.entropy:.2f}** nats - localised: {loc}"
+        f"Entropy **{step.entropy:.2f}** nats - localised: {loc}\n\n"
+        f"{_appearance_text(step)}"
     )
+
+
+#: names of the engine's appearance models, in TourIndex.model_weights() order
+APPEARANCE_MODELS = ("as taught", "changed light")
+
+
+def _appearance_text(step: StepView) -> str:
+    """Which appearance model the belief trusts, and each model's signature block weights."""
+    blocks = ("hist", "thumb", "desc_mean", "desc_var", "patch")
+    parts = []
+    for k, p in enumerate(step.appearance):
+        name = APPEARANCE_MODELS[k] if k < len(APPEARANCE_MODELS) else f"model {k}"
+        w = step.model_weights[k] if k < len(step.model_weights) else ()
+        shown = " ".join(f"{b} {x:.2f}" for b, x in zip(blocks, w, strict=False) if x >= 0.005)
+        parts.append(f"{name} **{p:.2f}**" + (f" ({shown})" if shown else ""))
+    return "Appearance: " + "; ".join(parts)
 
 
 def _votes_text(step: StepView, graph: TourGraph) -> str:

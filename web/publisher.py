@@ -12,6 +12,7 @@ for a few tiny queries (robots, tours and teaching rows, cached stored images).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import threading
 import time
@@ -70,6 +71,8 @@ class StepView:
     v: float  # m/s
     w: float  # rad/s
     step_ms: float
+    appearance: tuple[float, ...] = (1.0,)  # belief over the engine's appearance models
+    model_weights: tuple[tuple[float, ...], ...] = ()  # each model's signature block weights
 
 
 @dataclass(frozen=True)
@@ -297,6 +300,10 @@ class Publisher:
         records = [r for r in records if len(r.summary.state) == graph.n_states]
         if records:
             step = _step_view(records[-1], graph, index=len(records))
+            weights = tuple(
+                tuple(float(x) for x in w) for w in session.runtime.index.model_weights()
+            )
+            step = dataclasses.replace(step, model_weights=weights)
             hist_t = np.array([r.timestamp for r in records], dtype=np.float64)
             hist_top = np.array([float(r.summary.state.max()) for r in records], dtype=np.float64)
             hist_h = np.array([float(r.summary.entropy) for r in records], dtype=np.float64)
@@ -439,4 +446,5 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         v=float(command.v),
         w=float(command.w),
         step_ms=float(record.step_ms),
+        appearance=tuple(float(x) for x in summary.appearance),
     )

@@ -182,3 +182,29 @@ def test_learn_weights_finds_the_informative_block() -> None:
     w = learn_weights(np.concatenate(blocks, axis=1), states)
     assert w.shape == (5,) and w.sum() == pytest.approx(1.0) and np.all(w >= 0)
     assert w[2] > 0.2 > default_weights()[2]  # the informative block gained weight
+
+
+def test_query_models_equals_a_query_under_each_models_weights(tour) -> None:
+    idx, images = tour
+    models = idx.model_weights()
+    assert len(models) == 2 and models[1][-1] == 1.0  # the tour's, then the change-robust
+    frame = extract(shifted(images[3], 5))
+    both = idx.query_models(frame)
+    for w, sim in zip(models, both, strict=True):
+        alone = TourIndex(idx.params)
+        alone.add([idx.features(i) for i in range(idx.n_images)], idx.states)
+        alone.set_weights(w)
+        ref = alone.query(frame)
+        np.testing.assert_allclose(sim.image, ref.image, rtol=1e-5)
+        np.testing.assert_array_equal(sim.candidates, ref.candidates)
+    np.testing.assert_allclose(both[0].image, idx.query(frame).image, rtol=1e-5)
+    single = TourIndex(EngineParams(changed_weights=None))
+    assert len(single.model_weights()) == 1
+
+
+def test_block_distances_match_the_naive_reference(tour) -> None:
+    idx, images = tour
+    frame = extract(images[2])
+    bounds = np.concatenate([[0], np.cumsum([n for _, n in signature_blocks()])])
+    naive = block_distances(frame.signature, idx.signatures, bounds)
+    np.testing.assert_allclose(idx.block_distances(frame), naive, atol=1e-4)
