@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from server.bench.common import stats, write_json
+from server.bench.common import DESCRIPTOR_CHOICES, stats, write_json
 
 if TYPE_CHECKING:
     from server.belief.model import Action, TransitionParams
@@ -100,6 +100,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="signature block weights (hist, thumb, desc_mean, desc_var, patch): 'learned' on "
         "the reference tour as the server does, 'default' (engine defaults), 'patch' (the "
         "patch-normalised thumbnail only) or five comma-separated numbers (default learned)",
+    )
+    parser.add_argument(
+        "--descriptor",
+        choices=DESCRIPTOR_CHOICES,
+        default="grad36",
+        help="local features, FeatureParams.descriptor (default grad36; docs/retrieval.md)",
     )
     parser.add_argument("--lag", type=int, default=10, help="smoother window (default 10)")
     parser.add_argument(
@@ -652,7 +658,7 @@ def run(args: argparse.Namespace) -> int:
     from server.belief.model import TransitionParams
     from server.belief.tracker import TrackerParams
     from server.bench._retrieval_impl import limit_blas_threads
-    from server.vision.features import extract
+    from server.vision.features import FeatureParams, extract
     from server.vision.index import EngineParams
 
     cv2.setNumThreads(1)
@@ -679,7 +685,7 @@ def run(args: argparse.Namespace) -> int:
         print(exc)
         return 2
     learn = args.weights == "learned"
-    params = EngineParams(weights=weights)
+    params = EngineParams(weights=weights, features=FeatureParams(descriptor=args.descriptor))
     transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
     tracker_params = TrackerParams(smoother_lag=args.lag, likelihood_power=args.likelihood_power)
     print(
@@ -721,6 +727,7 @@ def run(args: argparse.Namespace) -> int:
         "transitions": args.transitions,
         "weights": args.weights,
         "weights_used": [round(float(x), 4) for x in index.weights],
+        "descriptor": args.descriptor,
         "action": args.action,
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
