@@ -502,10 +502,9 @@ def format_tables(output: dict[str, Any]) -> str:
             ("extract p95", ("extraction", "extract_ms", "p95"), ms),
             ("local p50", ("extraction", "local_ms", "p50"), ms),
             ("keypoints", ("extraction", "keypoints_mean"), "{:.0f}"),
-            ("corr. query", ("corridor_localize", "query_ms", "p50"), ms),
         ]
         + [
-            (f"{n} imgs p50", ("query_speed", n, "total_ms_p50"), ms)
+            (f"q{n} p50", ("query_speed", n, "total_ms_p50"), ms)
             for n in next(iter(res.values()))["query_speed"]
         ],
     )
@@ -523,6 +522,7 @@ def format_tables(output: dict[str, Any]) -> str:
                 ("tracker t2", (f"corridor_localize{suffix}", "tracker", "tol2"), "{:.3f}"),
                 ("ir_only t0", (f"corridor_localize{suffix}", "ir_only", "tol0"), "{:.3f}"),
                 ("ir_only t2", (f"corridor_localize{suffix}", "ir_only", "tol2"), "{:.3f}"),
+                ("query ms", (f"corridor_localize{suffix}", "query_ms", "p50"), ms),
             ],
         )
     if any("nordland" in r for r in res.values()):
