@@ -35,6 +35,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("bench", "retrieval"), "server.bench.retrieval", "image retrieval on real images vs OpenCV"),
     (("bench", "localize"), "server.bench.localize", "sequence localisation on real routes"),
     (
+        ("bench", "features"),
+        "server.bench.features",
+        "local feature options compared: extraction time, retrieval, localisation, simulator",
+    ),
+    (
         ("bench", "navigate"),
         "server.bench.navigate",
         "closed-loop navigation in the simulated home",

@@ -428,7 +428,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     sizes_arg = args.sizes or ("300" if quick else "1000,10000,100000")
     sizes = [int(s) for s in sizes_arg.split(",") if s.strip()]
     bq = [int(s) for s in str(args.baseline_queries).split(",") if s.strip()]
-    params = EngineParams()
+    params = EngineParams(features=FeatureParams(descriptor=args.descriptor))
     t0 = time.perf_counter()
 
     engine = accuracy(Engine(params, learn=False), ds)
@@ -442,7 +442,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
         other_geo = replace(params, geometric=not params.geometric)
         # every variant learns its weights per tour (groups of consecutive references), so
         # compare the others with "learned_weights", which differs from "engine" only there
-        p50 = replace(params, features=FeatureParams(n_features=50))
+        p50 = replace(params, features=replace(params.features, n_features=50))
         orb = replace(params, features=FeatureParams(descriptor="orb"))
         for name, method in (
             (f"geometric_{'on' if other_geo.geometric else 'off'}", Engine(other_geo, learn=True)),
@@ -466,7 +466,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
         pool=min(args.pool, 100) if quick else args.pool,
     )
     if "features_50" in variants:
-        p50 = replace(params, features=FeatureParams(n_features=50))
+        p50 = replace(params, features=replace(params.features, n_features=50))
         variants["features_50"]["speed"], _, ext50 = speed(
             ds,
             sizes,

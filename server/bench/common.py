@@ -13,6 +13,9 @@ from typing import Any
 import numpy as np
 
 CORRIDOR_MARKS_FILE = Path(__file__).with_name("corridor_marks.csv")
+#: The ``--descriptor`` options of the benchmarks: ``server.vision.features.DESCRIPTOR_KINDS``,
+#: written out so that building the CLI parser does not import OpenCV (a test keeps them equal).
+DESCRIPTOR_CHOICES: tuple[str, ...] = ("grad36", "orb", "orb_fast", "sift")
 
 
 def corridor_marks() -> dict[int, str]:

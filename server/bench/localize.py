@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from server.bench.common import stats, write_json
+from server.bench.common import DESCRIPTOR_CHOICES, stats, write_json
 
 if TYPE_CHECKING:
     from server.belief.model import Action, TransitionParams
@@ -143,6 +143,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="learn the weights also on N tour images under random changes of light "
         "(LearnParams.changed_images; default 0, see docs/localize.md)",
+    )
+    parser.add_argument(
+        "--descriptor",
+        choices=DESCRIPTOR_CHOICES,
+        default="grad36",
+        help="local features, FeatureParams.descriptor (default grad36; docs/retrieval.md)",
     )
     parser.add_argument("--lag", type=int, default=10, help="smoother window (default 10)")
     parser.add_argument(
@@ -993,6 +999,7 @@ def run(args: argparse.Namespace) -> int:
     from server.belief.model import TransitionParams
     from server.belief.tracker import TrackerParams
     from server.bench._retrieval_impl import limit_blas_threads
+    from server.vision.features import FeatureParams
     from server.vision.index import EngineParams
 
     cv2.setNumThreads(1)
@@ -1016,7 +1023,7 @@ def run(args: argparse.Namespace) -> int:
         print(exc)
         return 2
     learn = args.weights == "learned"
-    params = EngineParams(weights=weights)
+    params = EngineParams(weights=weights, features=FeatureParams(descriptor=args.descriptor))
     if args.appearance == "single":
         params = dataclasses.replace(params, changed_weights=None)
     transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
@@ -1059,6 +1066,7 @@ def run(args: argparse.Namespace) -> int:
         "appearance_models": f["appearance_models"],
         "changed_model_mean": f["changed_model_mean"],
         "weight_blocks": f["weight_blocks"],
+        "descriptor": args.descriptor,
         "action": args.action,
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",

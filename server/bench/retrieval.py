@@ -3,8 +3,9 @@
 On the real images of the shared data folder (corridor, Nordland, triplets, ukbench) and on
 synthesised tours of 1 000 / 10 000 / 100 000 images, in one run, side by side:
 
-* **engine** - :mod:`server.vision` with its defaults (plus variants: geometric check on, 100
-  features, ORB descriptor, default vs learned weights);
+* **engine** - :mod:`server.vision` with its defaults (``--descriptor`` changes the local
+  features; plus variants: geometric check on, 50 features, ORB descriptor, default vs learned
+  weights);
 * **baseline** - what a user would write with OpenCV alone: ORB with 500 features,
   brute-force Hamming ``knnMatch(k=2)`` with Lowe's ratio test (0.75) against every stored
   image, best = most good matches.
@@ -23,6 +24,8 @@ import argparse
 import os
 from pathlib import Path
 from typing import Any
+
+from server.bench.common import DESCRIPTOR_CHOICES
 
 DEFAULT_SIZES = "1000,10000,100000"
 
@@ -72,6 +75,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--no-variants", action="store_true", help="skip the engine variants (faster)"
+    )
+    parser.add_argument(
+        "--descriptor",
+        choices=DESCRIPTOR_CHOICES,
+        default="grad36",
+        help="local features of the engine, FeatureParams.descriptor (default grad36)",
     )
 
 

@@ -27,6 +27,7 @@ from server.bench.common import write_json
 
 if TYPE_CHECKING:
     from robot_client.sim.floorplan import FloorPlan
+    from server.vision.features import DescriptorKind
 
 CONDITIONS = ("same", "lighting", "moved")
 
@@ -122,14 +123,16 @@ def evaluate(
     weights: str,
     radius: float,
     angle_deg: float,
+    descriptor: DescriptorKind = "grad36",
 ) -> dict[str, Any]:
-    """Recall of one engine configuration in every condition."""
+    """Recall of one engine configuration in every condition (``descriptor``:
+    ``FeatureParams.descriptor``)."""
     from server.navigation import ROBUST_WEIGHTS
     from server.vision.features import FeatureParams, extract
     from server.vision.index import EngineParams, TourIndex
     from server.vision.learning import learn_weights
 
-    fp = FeatureParams(colour_constancy=colour_constancy)
+    fp = FeatureParams(colour_constancy=colour_constancy, descriptor=descriptor)
     ep = EngineParams(features=fp)
     names = sorted(set(keys))
     state_of = {k: i for i, k in enumerate(names)}

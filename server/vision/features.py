@@ -13,27 +13,36 @@ Steps of :func:`extract`:
    that multiplies each channel by a gain (dimmer, warmer, a different bulb) cancels out, so
    the histogram and thumbnail compare the scene, not the lamp. Every pixel coordinate in this
    module is at the working size.
-2. **Harris corners** (``cv2.goodFeaturesToTrack`` with the Harris response), strongest first,
-   at most ``n_features`` (100 by default, chosen by the benchmark; 50 as in the paper is the
-   faster option), away from the border.
-3. **Descriptor** at each corner, chosen by ``FeatureParams.descriptor``:
+2. **Keypoints and descriptors**, at most ``n_features`` (100 by default, chosen by the
+   benchmark; 50 as in the paper is the faster option), strongest first, chosen by
+   ``FeatureParams.descriptor`` (:data:`DESCRIPTOR_KINDS`):
 
-   * ``"grad36"`` (default, the paper's 36 bytes of neighbouring-pixel gradients): a 3x3 grid of
-     cells around the corner, in each cell the summed positive and negative x and y gradients
-     (4 values), L2-normalised, clipped and quantised to ``uint8``. Compared by Euclidean distance.
-   * ``"orb"``: the 32-byte upright ORB/BRIEF binary descriptor at the same corners, compared by
+   * ``"grad36"`` (default, the paper's 36 bytes of neighbouring-pixel gradients) at **Harris
+     corners** (``cv2.goodFeaturesToTrack`` with the Harris response, away from the border): a
+     3x3 grid of cells around the corner, in each cell the summed positive and negative x and y
+     gradients (4 values), L2-normalised, clipped and quantised to ``uint8``. Euclidean distance.
+   * ``"orb"``: the 32-byte upright ORB/BRIEF binary descriptor at the same Harris corners,
      Hamming distance.
+   * ``"orb_fast"``: OpenCV's ORB as it comes: its own FAST keypoints over an 8-level pyramid
+     (scale 1.2), ranked by the Harris score, with the oriented (rotation-invariant) 32-byte
+     descriptor. Hamming distance.
+   * ``"sift"``: OpenCV's SIFT keypoints (difference of Gaussians, scale and orientation) and
+     128-value descriptors. OpenCV computes each as a unit vector times 512, saturated to
+     [0, 255] and rounded, so storing it as ``uint8`` loses nothing (``CV_8U`` gives the same
+     bytes). Euclidean distance of the vectors divided by 512 (unit norm).
 
-   The benchmark (``teachrepeat bench retrieval``, docs/retrieval.md) chose the default.
-4. **Global signature**: the concatenation of unit-L2-norm blocks (see :func:`signature_blocks`):
+   AKAZE, KAZE and BRISK moved to opencv_contrib in OpenCV 5 and are not in
+   opencv-python-headless. The benchmarks (``teachrepeat bench retrieval`` and ``teachrepeat
+   bench features``, docs/retrieval.md) chose the default.
+3. **Global signature**: the concatenation of unit-L2-norm blocks (see :func:`signature_blocks`):
 
    * ``hist``: YCbCr histogram, 64 bins per channel, square-rooted (Hellinger), stored as its
      orthonormal DCT coefficients per channel (192 values; all 64 kept by default, which is
      the plain histogram distance; ``hist_coefficients=16`` low-pass filters the histograms and
      makes the first pass read 4x fewer bytes, at a measured cost in recall);
    * ``thumb``: 8x6x3 colour thumbnail, mean removed (brightness invariant), 144 values;
-   * ``desc_mean``, ``desc_var``: mean and variance of the descriptors (36 + 36 values for grad36,
-     32 + 32 per-byte bit counts for ORB);
+   * ``desc_mean``, ``desc_var``: mean and variance of the descriptor values (D + D values: the
+     bytes of grad36 and SIFT; the per-byte bit counts of the binary ORB kinds);
    * ``patch``: a patch-normalised grey thumbnail (16x12; each pixel minus the mean over a local
      window, divided by its standard deviation, as in SeqSLAM), 192 values. Beyond the paper:
      it carries most of the weight on low-texture and low-resolution images.
@@ -53,9 +62,18 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-DescriptorKind = Literal["grad36", "orb"]
-DESCRIPTOR_KINDS: tuple[DescriptorKind, ...] = ("grad36", "orb")
-DESCRIPTOR_BYTES: dict[str, int] = {"grad36": 36, "orb": 32}
+DescriptorKind = Literal["grad36", "orb", "orb_fast", "sift"]
+#: Every descriptor option. The blob (:meth:`ImageFeatures.to_bytes`) stores the position in
+#: this tuple: new kinds are appended, never inserted.
+DESCRIPTOR_KINDS: tuple[DescriptorKind, ...] = ("grad36", "orb", "orb_fast", "sift")
+#: Bytes per descriptor (D) of each kind.
+DESCRIPTOR_BYTES: dict[str, int] = {"grad36": 36, "orb": 32, "orb_fast": 32, "sift": 128}
+#: Kinds compared by Hamming distance; the others are vectors compared by Euclidean distance.
+BINARY_DESCRIPTORS: frozenset[str] = frozenset({"orb", "orb_fast"})
+#: Kinds at Harris corners (:func:`detect_corners`); the others bring their own detector.
+HARRIS_DESCRIPTORS: frozenset[str] = frozenset({"grad36", "orb"})
+#: Nominal L2 norm of an OpenCV SIFT descriptor in byte units.
+SIFT_NORM = 512.0
 
 #: Names of the signature blocks, in the order they are concatenated.
 SIGNATURE_BLOCKS: tuple[str, ...] = ("hist", "thumb", "desc_mean", "desc_var", "patch")
@@ -74,11 +92,14 @@ class FeatureParams:
 
     Attributes:
         width, height: working size every frame is resized to (px).
-        n_features: corners kept per image, strongest Harris response first. The paper uses
-            50; the benchmark (docs/retrieval.md) chose 100 as the default (corridor recall@1
-            0.75 -> 0.91); 50 is the faster option.
-        descriptor: ``"grad36"`` (36-byte gradient descriptor) or ``"orb"`` (32-byte binary).
-        harris_k: Harris detector free parameter.
+        n_features: keypoints kept per image, strongest detector response first. The paper
+            uses 50; the benchmark (docs/retrieval.md) chose 100 as the default (corridor
+            recall@1 0.75 -> 0.91); 50 is the faster option.
+        descriptor: one of :data:`DESCRIPTOR_KINDS`: ``"grad36"`` (36-byte gradient descriptor
+            at Harris corners), ``"orb"`` (32-byte upright ORB at Harris corners),
+            ``"orb_fast"`` (OpenCV ORB: FAST keypoints, oriented 32-byte descriptor),
+            ``"sift"`` (OpenCV SIFT: 128 bytes). See the module docstring.
+        harris_k: Harris detector free parameter (Harris kinds only, as the next four).
         harris_block: neighbourhood size of the Harris structure tensor (px).
         quality: minimum corner response relative to the strongest one in the image.
         min_distance: minimum distance between two kept corners (px).
@@ -147,6 +168,18 @@ class FeatureParams:
         return DESCRIPTOR_BYTES[self.descriptor]
 
     @property
+    def binary(self) -> bool:
+        """True when descriptors are compared by Hamming distance (bits), False for vectors
+        compared by Euclidean distance (:data:`BINARY_DESCRIPTORS`)."""
+        return self.descriptor in BINARY_DESCRIPTORS
+
+    @property
+    def descriptor_scale(self) -> float:
+        """Factor that maps the bytes of a vector descriptor to about unit L2 norm: grad36
+        ``clip / 255``, SIFT ``1 / 512``; 1 for binary kinds (unused there)."""
+        return _vector_scale(self.descriptor, self.clip)
+
+    @property
     def flags(self) -> int:
         """The :attr:`ImageFeatures.flags` that features extracted with these params carry."""
         return FLAG_COLOUR_CONSTANCY if self.colour_constancy else 0
@@ -161,9 +194,18 @@ class FeatureParams:
         )
 
 
+def _vector_scale(kind: str, clip: float) -> float:
+    """See :attr:`FeatureParams.descriptor_scale`."""
+    if kind == "grad36":
+        return clip / 255.0
+    if kind == "sift":
+        return 1.0 / SIFT_NORM
+    return 1.0
+
+
 def signature_blocks(params: FeatureParams = FeatureParams()) -> tuple[tuple[str, int], ...]:
     """``(name, length)`` of every signature block, in order (see the module docstring)."""
-    summary = 36 if params.descriptor == "grad36" else params.descriptor_bytes
+    summary = params.descriptor_bytes
     tw, th = params.thumb_size
     pw, ph = params.patch_size
     return (
@@ -187,7 +229,8 @@ class ImageFeatures:
     Attributes:
         keypoints: ``(K, 2) float32`` corner (x, y) in pixels at the working size, strongest
             first; ``K <= n_features`` (0 for a blank image).
-        descriptors: ``(K, D) uint8``, row k describes keypoint k (D = 36 grad36, 32 ORB).
+        descriptors: ``(K, D) uint8``, row k describes keypoint k (D from
+            :data:`DESCRIPTOR_BYTES`: 36 grad36, 32 ORB kinds, 128 SIFT).
         signature: ``(S,) float32`` global signature, unit-norm blocks (:func:`signature_blocks`).
         descriptor: which descriptor produced ``descriptors``.
         size: working size ``(width, height)`` in pixels the keypoints refer to.
@@ -360,7 +403,10 @@ def _border_mask(params: FeatureParams, border: int) -> npt.NDArray[np.uint8]:
 def detect_corners(
     grey: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
 ) -> npt.NDArray[np.float32]:
-    """Harris corners of a working-size grey image, strongest first: ``(K, 2) float32`` (x, y)."""
+    """Harris corners of a working-size grey image, strongest first: ``(K, 2) float32`` (x, y).
+
+    The detector of the Harris kinds (:data:`HARRIS_DESCRIPTORS`); ``orb`` keeps 16 px from the
+    border for its 31 px patch."""
     border = params.border if params.descriptor == "grad36" else max(params.border, 16)
     corners = cv2.goodFeaturesToTrack(
         grey,
@@ -465,6 +511,35 @@ def orb_descriptors(
     return pts, np.ascontiguousarray(desc, dtype=np.uint8)
 
 
+def opencv_features(
+    grey: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """Keypoints and descriptors of the kinds with their own OpenCV detector (``orb_fast``,
+    ``sift``) on a working-size grey image.
+
+    Returns ``(K, 2) float32`` (x, y) in pixels at the working size and ``(K, D) uint8``,
+    strongest detector response first, ``K <= params.n_features`` (SIFT may return a keypoint
+    twice with two orientations; each counts). A detector object is created per call (well
+    under a microsecond), so concurrent calls share no state.
+    """
+    d = params.descriptor_bytes
+    if params.descriptor == "orb_fast":
+        detector: cv2.Feature2D = cv2.ORB.create(nfeatures=params.n_features)
+    elif params.descriptor == "sift":
+        detector = cv2.SIFT.create(nfeatures=params.n_features)
+    else:
+        raise ValueError(f"{params.descriptor!r} uses Harris corners: call detect_corners")
+    kps, desc = detector.detectAndCompute(grey, None)
+    if desc is None or len(kps) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros((0, d), np.uint8)
+    response = np.fromiter((k.response for k in kps), np.float32, count=len(kps))
+    order = np.argsort(-response, kind="stable")[: params.n_features]
+    pts = np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)[order]
+    # SIFT: OpenCV's float values are already whole numbers in [0, 255] (see the module doc)
+    values = np.clip(np.rint(np.asarray(desc)[order]), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(pts), np.ascontiguousarray(values.reshape(-1, d))
+
+
 def _unit(v: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
     v = np.asarray(v, np.float32).ravel()
     n = float(np.linalg.norm(v))
@@ -472,7 +547,7 @@ def _unit(v: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
 
 
 def _descriptor_values(desc: npt.NDArray[np.uint8], kind: str) -> npt.NDArray[np.float32]:
-    if kind == "orb":
+    if kind in BINARY_DESCRIPTORS:
         return np.bitwise_count(desc).astype(np.float32)  # per-byte bit counts, 0..8
     return desc.astype(np.float32)
 
@@ -495,7 +570,7 @@ def compute_signature(
     thumb = cv2.resize(colour, params.thumb_size, interpolation=cv2.INTER_AREA).astype(np.float32)
     thumb = _unit(thumb - thumb.mean())
 
-    summary = 36 if params.descriptor == "grad36" else params.descriptor_bytes
+    summary = params.descriptor_bytes
     if len(descriptors):
         vals = _descriptor_values(descriptors, params.descriptor)
         d_mean = _unit(vals.mean(axis=0))
@@ -559,6 +634,8 @@ def extract_corners(
 def _corners_and_descriptors(
     grey: npt.NDArray[np.uint8], params: FeatureParams
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    if params.descriptor not in HARRIS_DESCRIPTORS:
+        return opencv_features(grey, params)
     corners = detect_corners(grey, params)
     if params.descriptor == "grad36":
         return corners, grad36_descriptors(grey, corners, params)
@@ -573,15 +650,17 @@ def descriptor_distances(
 ) -> npt.NDArray[np.float32]:
     """Pairwise descriptor distances ``(Ka, Kb) float32``, normalised to about [0, 1].
 
-    grad36: Euclidean distance divided by the nominal descriptor norm (``255 / clip``);
-    ORB: Hamming distance divided by the number of bits.
+    Vector kinds: Euclidean distance of the descriptors scaled to nominal unit norm
+    (:attr:`FeatureParams.descriptor_scale`: grad36 ``clip / 255``, SIFT ``1 / 512``); binary
+    kinds (:data:`BINARY_DESCRIPTORS`): Hamming distance divided by the number of bits.
+    ``params`` only supplies the grad36 clip; ``kind`` says which descriptor ``a`` and ``b`` are.
     """
     if len(a) == 0 or len(b) == 0:
         return np.zeros((len(a), len(b)), np.float32)
-    if kind == "grad36":
-        scale = 255.0 / params.clip
-        af = a.astype(np.float32) / scale
-        bf = b.astype(np.float32) / scale
+    if kind not in BINARY_DESCRIPTORS:
+        scale = np.float32(_vector_scale(kind, params.clip))
+        af = a.astype(np.float32) * scale
+        bf = b.astype(np.float32) * scale
         sq = (af * af).sum(1)[:, None] + (bf * bf).sum(1)[None, :] - 2.0 * (af @ bf.T)
         return np.sqrt(np.maximum(sq, 0.0)).astype(np.float32)
     bits = 8 * a.shape[1]

@@ -438,9 +438,10 @@ class TourIndex:
     ) -> tuple[npt.NDArray[np.float32] | None, npt.NDArray[np.bool_]]:
         """``(Kq, C, K)`` descriptor dissimilarities and which candidates have corners.
 
-        grad36: *squared* Euclidean distance of descriptors scaled to nominal unit norm (take
-        the square root after any min); ORB: Hamming distance / bits. Padding slots hold a huge
-        value so they never win a min.
+        Vector kinds (grad36, SIFT): *squared* Euclidean distance of descriptors scaled to
+        nominal unit norm (``FeatureParams.descriptor_scale``; take the square root after any
+        min); binary kinds (ORB): Hamming distance / bits. Padding slots hold a huge value so
+        they never win a min.
         """
         kq = query.n_keypoints
         c = len(candidates)
@@ -452,8 +453,8 @@ class TourIndex:
         flat = self._desc[candidates].reshape(c * k, self._d)  # (C*K, D) uint8
         pad = (np.arange(k)[None, :] >= nk[:, None]).ravel()  # (C*K,)
         fp = self.params.features
-        if fp.descriptor == "grad36":
-            scale = np.float32(fp.clip / 255.0)
+        if not fp.binary:
+            scale = np.float32(fp.descriptor_scale)
             qf = query.descriptors.astype(np.float32) * scale
             cf = flat.astype(np.float32) * scale
             c2 = np.einsum("ij,ij->i", cf, cf)
@@ -475,7 +476,7 @@ class TourIndex:
     def _to_distance(self, x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
         """Map values of :meth:`_corner_distances` (after a min) to distances."""
         y: npt.NDArray[np.float64] = np.asarray(x, np.float64)
-        if self.params.features.descriptor == "grad36":
+        if not self.params.features.binary:
             return np.asarray(np.sqrt(np.maximum(y, 0.0)), np.float64)
         return y
 

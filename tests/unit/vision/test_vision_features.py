@@ -2,16 +2,31 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vision_testkit import scene
+from vision_testkit import index_of, scene, shifted
 
-from server.vision import FeatureParams, ImageFeatures, extract
+from server.vision import (
+    EngineParams,
+    FeatureParams,
+    HomingParams,
+    ImageFeatures,
+    extract,
+    match_features,
+)
 from server.vision.features import (
+    BINARY_DESCRIPTORS,
+    DESCRIPTOR_BYTES,
+    DESCRIPTOR_KINDS,
+    DescriptorKind,
+    descriptor_distances,
     extract_corners,
     grey_world,
+    normalise,
+    opencv_features,
     signature_blocks,
     signature_length,
 )
@@ -59,6 +74,8 @@ def test_fifty_features_option_and_orb() -> None:
         ((120, 160, 3), FeatureParams()),
         ((240, 320), FeatureParams(colour_constancy=False)),
         ((300, 400, 3), FeatureParams(descriptor="orb")),
+        ((240, 320, 3), FeatureParams(descriptor="orb_fast")),
+        ((300, 400, 3), FeatureParams(descriptor="sift")),
     ],
 )
 def test_extract_corners_gives_the_corners_and_descriptors_of_extract(
@@ -87,7 +104,7 @@ def test_rejects_bad_input_with_a_helpful_message() -> None:
     with pytest.raises(ValueError, match="uint8"):
         extract(np.zeros((10, 10), np.float32))
     with pytest.raises(ValueError, match="descriptor"):
-        FeatureParams(descriptor="sift")  # type: ignore[arg-type]
+        FeatureParams(descriptor="akaze")  # type: ignore[arg-type]
 
 
 def test_round_trip_of_real_features() -> None:
@@ -227,3 +244,161 @@ def test_grad36_near_the_border_reads_a_mirrored_image() -> None:
     assert desc.shape == (4, 36) and desc.dtype == np.uint8
     inner = grad36_descriptors(grey, corners[3:], p)
     np.testing.assert_array_equal(desc[3], inner[0])  # padding does not change inner corners
+
+
+# --- every descriptor option (FeatureParams.descriptor) ---------------------------------------
+
+
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_each_descriptor_extracts_and_matches_a_shifted_copy(kind: DescriptorKind) -> None:
+    """Keypoints and descriptors of every kind find a 6 px shift: RANSAC on the matches
+    recovers the translation, with most matches as inliers."""
+    p = FeatureParams(descriptor=kind)
+    original, moved = extract(scene(3), p), extract(shifted(scene(3), 6), p)
+    for f in (original, moved):
+        assert f.descriptor == kind and 20 <= f.n_keypoints <= p.n_features
+        assert f.keypoints.dtype == np.float32 and f.keypoints.shape == (f.n_keypoints, 2)
+        assert f.descriptors.dtype == np.uint8
+        assert f.descriptors.shape == (f.n_keypoints, DESCRIPTOR_BYTES[kind])
+        assert np.all((f.keypoints >= 0) & (f.keypoints < [320, 240]))
+        assert f.signature.shape == (signature_length(p),)
+    src, dst = match_features(moved, original, params=HomingParams(features=p))
+    h, mask = cv2.findHomography(src, dst, cv2.RANSAC, 2.0)
+    assert h is not None and mask is not None
+    assert int(mask.sum()) >= 20 and mask.mean() > 0.8
+    # dst = src shifted back by 6 px: a pure translation
+    np.testing.assert_allclose(h[:2, 2], [-6.0, 0.0], atol=0.6)
+    np.testing.assert_allclose(h[:2, :2], np.eye(2), atol=0.01)
+
+
+@pytest.mark.parametrize("geometric", [False, True])
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_each_descriptor_ranks_the_shifted_copy_first(
+    kind: DescriptorKind, geometric: bool
+) -> None:
+    p = EngineParams(features=FeatureParams(descriptor=kind), geometric=geometric)
+    idx, _ = index_of([scene(s) for s in range(6)], list(range(6)), p)
+    for i in (1, 4):
+        sim = idx.query(extract(shifted(scene(i), 6), p.features))
+        assert int(np.argmax(sim.image)) == i
+
+
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_index_feature_errors_equal_the_mean_nearest_descriptor_distance(
+    kind: DescriptorKind,
+) -> None:
+    """The index's batched second pass (vector kinds: squared distance, root after the min;
+    binary kinds: Hamming from +-1 products) equals :func:`descriptor_distances` per pair."""
+    p = EngineParams(features=FeatureParams(descriptor=kind))
+    idx, feats = index_of([scene(s) for s in range(4)], [0, 1, 2, 3], p)
+    query = extract(shifted(scene(2), 4), p.features)
+    got = idx.feature_errors(query, np.arange(4, dtype=np.int64))
+    for j, f in enumerate(feats):
+        d = descriptor_distances(query.descriptors, f.descriptors, kind, p.features)
+        want = 0.5 * (d.min(axis=1).mean() + d.min(axis=0).mean())
+        assert got[j] == pytest.approx(want, abs=1e-4)
+    assert int(np.argmin(got)) == 2
+
+
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_descriptor_distances_are_zero_on_identical_and_larger_on_different(
+    kind: DescriptorKind,
+) -> None:
+    p = FeatureParams(descriptor=kind)
+    desc = extract(scene(8), p).descriptors
+    d = descriptor_distances(desc, desc, kind, p)
+    assert d.shape == (len(desc), len(desc)) and d.dtype == np.float32
+    assert np.abs(np.diag(d)).max() < 2e-3
+    same = np.all(desc[:, None] == desc[None, :], axis=2)
+    distinct = ~same
+    assert d[distinct].min() > 0.0
+    # a descriptor with no duplicate is nearest to itself (one byte apart: 0.001 for grad36)
+    unique = same.sum(axis=1) == 1
+    assert np.array_equal(d.argmin(axis=1)[unique], np.flatnonzero(unique))
+    assert 0.2 < float(np.median(d[distinct])) < 1.5  # normalised to about [0, 1]
+    # naive reference: Hamming over the bits, or L2 of the unit-scaled vectors
+    a, b = desc[:5], desc[5:9]
+    if kind in BINARY_DESCRIPTORS:
+        bits = np.unpackbits(a[:, None] ^ b[None], axis=2).sum(axis=2)
+        want = bits / (8.0 * a.shape[1])
+    else:
+        s = p.descriptor_scale
+        want = np.linalg.norm(a[:, None].astype(float) * s - b[None].astype(float) * s, axis=2)
+    np.testing.assert_allclose(descriptor_distances(a, b, kind, p), want, atol=1e-4)
+
+
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_blob_round_trip_of_every_descriptor(kind: DescriptorKind) -> None:
+    p = FeatureParams(descriptor=kind)
+    f = extract(scene(4), p)
+    blob = f.to_bytes()
+    assert blob[6] == DESCRIPTOR_KINDS.index(kind)  # the kind's position in DESCRIPTOR_KINDS
+    assert ImageFeatures.from_bytes(blob) == f
+    assert p.matches(ImageFeatures.from_bytes(blob))
+
+
+@pytest.mark.parametrize(("kind_index", "kind", "d"), [(0, "grad36", 36), (1, "orb", 32)])
+def test_blobs_written_before_the_new_descriptors_still_load(
+    kind_index: int, kind: DescriptorKind, d: int
+) -> None:
+    """A version-2 blob packed by hand as the code before the new kinds wrote it."""
+    import struct
+
+    rng = np.random.default_rng(kind_index)
+    kp = rng.uniform(0, 300, (3, 2)).astype("<f4")
+    desc = rng.integers(0, 256, (3, d), dtype=np.uint8)
+    sig = rng.normal(size=600 if d == 36 else 592).astype("<f4")
+    header = struct.pack("<4sHBBHHHHH", b"TRVF", 2, kind_index, 1, 3, d, len(sig), 320, 240)
+    f = ImageFeatures.from_bytes(header + kp.tobytes() + desc.tobytes() + sig.tobytes())
+    assert (f.descriptor, f.flags, f.size) == (kind, 1, (320, 240))
+    np.testing.assert_array_equal(f.keypoints, kp)
+    np.testing.assert_array_equal(f.descriptors, desc)
+    np.testing.assert_array_equal(f.signature, sig)
+
+
+@pytest.mark.parametrize("kind", DESCRIPTOR_KINDS)
+def test_signature_blocks_of_every_descriptor(kind: DescriptorKind) -> None:
+    p = FeatureParams(descriptor=kind)
+    f = extract(scene(2), p)
+    sizes = dict(signature_blocks(p))
+    assert sizes["desc_mean"] == sizes["desc_var"] == DESCRIPTOR_BYTES[kind]
+    for name in sizes:
+        assert np.linalg.norm(_block(f.signature, name, p)) == pytest.approx(1.0, abs=1e-4)
+    values = (
+        np.unpackbits(f.descriptors, axis=1).reshape(f.n_keypoints, -1, 8).sum(axis=2)
+        if kind in BINARY_DESCRIPTORS
+        else f.descriptors.astype(np.float64)
+    )
+    mean = values.mean(axis=0)
+    np.testing.assert_allclose(
+        _block(f.signature, "desc_mean", p), mean / np.linalg.norm(mean), atol=1e-5
+    )
+
+
+def test_sift_bytes_are_opencv_s_float_values_exactly() -> None:
+    """OpenCV's float SIFT values are whole numbers in [0, 255] (unit vector x 512,
+    saturated): the uint8 descriptors lose nothing."""
+    p = FeatureParams(descriptor="sift")
+    _, grey = normalise(scene(6), p)
+    kps, ref = cv2.SIFT.create(nfeatures=p.n_features).detectAndCompute(grey, None)
+    assert np.array_equal(ref, np.rint(ref)) and ref.min() >= 0 and ref.max() <= 255
+    pts, desc = opencv_features(grey, p)
+    # same keypoints, ours ordered by response: match rows by position
+    ref_pts = cv2.KeyPoint.convert(kps)
+    for q, row in zip(pts[:20], desc[:20], strict=True):
+        hits = np.flatnonzero(np.all(ref_pts == q, axis=1))
+        assert any(np.array_equal(ref[h].astype(np.uint8), row) for h in hits)
+    norms = np.linalg.norm(desc.astype(np.float64), axis=1)
+    assert np.all(np.abs(norms * p.descriptor_scale - 1.0) < 0.05)
+
+
+@pytest.mark.parametrize("kind", ["orb_fast", "sift"])
+def test_own_detector_kinds_keep_at_most_n_features_strongest_first(kind: DescriptorKind) -> None:
+    few = extract(scene(1), FeatureParams(descriptor=kind, n_features=30))
+    many = extract(scene(1), FeatureParams(descriptor=kind, n_features=200))
+    assert 25 <= few.n_keypoints <= 30 < many.n_keypoints <= 200
+    if kind == "sift":  # SIFT keeps the best by response: the 30 are the 200's first 30
+        # (as sets: the synthetic scene has keypoints of equal response)
+        assert {tuple(x) for x in few.keypoints} == {tuple(x) for x in many.keypoints[:30]}
+    blank = np.full((240, 320, 3), 90, np.uint8)
+    assert extract(blank, FeatureParams(descriptor=kind)).n_keypoints == 0
