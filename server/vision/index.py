@@ -480,12 +480,29 @@ class TourIndex:
             return np.asarray(np.sqrt(np.maximum(y, 0.0)), np.float64)
         return y
 
+    def geometric_inliers(self, query: ImageFeatures, candidates: npt.ArrayLike) -> IntArray:
+        """``(C,) int64`` RANSAC homography inliers between ``query`` and each of ``candidates``
+        (image indices) on mutual nearest-neighbour corner matches: the count the geometric
+        check's inlier fraction is made of (0 when unverifiable)."""
+        cand = np.asarray(candidates, np.int64).ravel()
+        if len(cand) and (cand.min() < 0 or cand.max() >= self._n):
+            raise IndexError(f"candidates {cand} not all in index of {self._n} images")
+        dist, _ = self._corner_distances(query, cand)
+        return self._geometric_inliers(query, cand, dist)
+
     def _geometric_errors(
         self, query: ImageFeatures, candidates: IntArray, dist: npt.NDArray[np.float32] | None
     ) -> FloatArray:
         """``(C,)`` 1 - RANSAC inlier fraction for each of ``candidates`` (1 when unverifiable)."""
+        inliers = self._geometric_inliers(query, candidates, dist)
+        return 1.0 - inliers / float(max(query.n_keypoints, 1))
+
+    def _geometric_inliers(
+        self, query: ImageFeatures, candidates: IntArray, dist: npt.NDArray[np.float32] | None
+    ) -> IntArray:
+        """``(C,)`` RANSAC inliers for each of ``candidates`` (0 when unverifiable)."""
         p = self.params
-        out = np.ones(len(candidates), np.float64)
+        out = np.zeros(len(candidates), np.int64)
         if dist is None:
             return out
         kq = query.n_keypoints
@@ -504,7 +521,7 @@ class TourIndex:
             _, mask = cv2.findHomography(src, dst, cv2.RANSAC, p.ransac_threshold)
             if mask is None:
                 continue
-            out[j] = 1.0 - float(mask.sum()) / float(max(kq, 1))
+            out[j] = int(mask.sum())
         return out
 
     def query(self, features: ImageFeatures, *, n_states: int | None = None) -> Similarity:

@@ -159,6 +159,19 @@ def test_geometric_check_keeps_the_identical_image_first(tour) -> None:
     assert int(np.argmax(sim.image)) == 4
 
 
+def test_geometric_inliers_single_out_the_same_scene(tour) -> None:
+    idx, images = tour
+    everything = np.arange(idx.n_images)
+    for i in (1, 4, 7):
+        inliers = idx.geometric_inliers(extract(shifted(images[i], 10)), everything)
+        assert inliers.shape == (idx.n_images,) and inliers.dtype == np.int64
+        assert inliers[i] >= 50
+        # RANSAC on mutual nearest neighbours of unrelated scenes still finds a few
+        assert np.delete(inliers, i).max() <= 12
+    with pytest.raises(IndexError, match="not all in index"):
+        idx.geometric_inliers(extract(images[0]), [idx.n_images])
+
+
 def test_learn_weights_defaults_for_small_tours() -> None:
     sig = np.random.default_rng(0).normal(size=(5, 600)).astype(np.float32)
     np.testing.assert_allclose(learn_weights(sig, [0, 0, 1, 1, 2]), default_weights())
