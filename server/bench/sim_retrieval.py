@@ -263,6 +263,8 @@ def side_poses(
         raise ValueError(f"offset_m must be a finite distance >= 0, got {offset_m}")
     if step_m <= 0:
         raise ValueError(f"step_m must be > 0, got {step_m}")
+    if not 0 <= turn_deg <= 180:
+        raise ValueError(f"turn_deg must lie in [0, 180] degrees, got {turn_deg}")
     n = len(sources)
     rng = np.random.default_rng(seed)
     sides = 1 - 2 * rng.permutation(np.arange(n) % 2)  # +1 left, -1 right
@@ -496,6 +498,14 @@ def run_offsets(args: argparse.Namespace, plan: FloorPlan, route: tuple[str, ...
         return 2
     if len(set(labels.values())) < len(labels):
         print("teachrepeat bench sim-retrieval: --offsets: two offsets have the same label")
+        return 2
+    if not 0 <= args.turn_deg <= 180:
+        print(
+            f"teachrepeat bench sim-retrieval: --turn-deg must lie in [0, 180], not {args.turn_deg}"
+        )
+        return 2
+    if args.queries < 1:
+        print(f"teachrepeat bench sim-retrieval: --queries must be at least 1, not {args.queries}")
         return 2
     conditions = list(dict.fromkeys(args.condition or ["same"]))
     t0 = time.perf_counter()

@@ -121,6 +121,18 @@ def test_side_poses_takes_the_other_side_or_skips() -> None:
     assert all(p is not None for p in side_poses(east, 0.0, seed=1, is_free=lambda x, y: x == 0))
 
 
+def test_side_poses_rejects_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="offset_m"):
+        side_poses(SOURCES, -1.0, seed=0, is_free=lambda x, y: True)
+    with pytest.raises(ValueError, match="turn_deg"):
+        side_poses(SOURCES, 1.0, seed=0, is_free=lambda x, y: True, turn_deg=-30.0)
+
+
+def test_offsets_refuses_a_bad_turn(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "sim-retrieval", "--offsets", "1", "--turn-deg", "400"]) == 2
+    assert "--turn-deg must lie in [0, 180]" in capsys.readouterr().out
+
+
 def test_canonical_order_places_first_then_each_traversal() -> None:
     keys = ["a", "a", "a->b", "a->b", "b", "b", "b->a", "b->a", "a->b"]
     order, states = canonical_order(keys)
