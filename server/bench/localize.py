@@ -1000,7 +1000,7 @@ def run(args: argparse.Namespace) -> int:
     from server.belief.tracker import TrackerParams
     from server.bench._retrieval_impl import limit_blas_threads
     from server.vision.features import FeatureParams
-    from server.vision.index import EngineParams
+    from server.vision.index import CHANGED_WEIGHTS, EngineParams
 
     cv2.setNumThreads(1)
     limit_blas_threads(1)
@@ -1024,8 +1024,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     learn = args.weights == "learned"
     params = EngineParams(weights=weights, features=FeatureParams(descriptor=args.descriptor))
-    if args.appearance == "single":
-        params = dataclasses.replace(params, changed_weights=None)
+    if args.appearance == "models":
+        params = dataclasses.replace(params, changed_weights=CHANGED_WEIGHTS)
     transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
     tracker_params = TrackerParams(smoother_lag=args.lag, likelihood_power=args.likelihood_power)
     settings = RunSettings(

@@ -71,7 +71,9 @@ class EngineParams:
         changed_weights: weights of a second appearance model that holds when the light or
             the season changed (:data:`CHANGED_WEIGHTS`); :meth:`TourIndex.query_models`
             scores a frame with both, and the belief tracker weighs them by how well each
-            explains the camera (:mod:`server.belief.appearance`). ``None``: one model only.
+            explains the camera (:mod:`server.belief.appearance`). ``None`` (the default for
+            now): one model only. ``bench localize`` uses both by default; navigation does
+            not yet (a closed-loop test arrived at the wrong place with both, docs/localize.md).
         feature_weight: weight of ``e_features`` (mean nearest-corner distance, ~[0, 1]).
         signature_weight: weight of the first-pass signature distance (~[0, 4]) in ``e``.
         symmetric: ``e_features`` also averages each candidate corner's nearest query corner
@@ -89,7 +91,7 @@ class EngineParams:
     features: FeatureParams = field(default_factory=FeatureParams)
     n_candidates: int = 20
     weights: tuple[float, ...] | None = None
-    changed_weights: tuple[float, ...] | None = CHANGED_WEIGHTS
+    changed_weights: tuple[float, ...] | None = None
     feature_weight: float = 1.0
     signature_weight: float = 0.2
     symmetric: bool = True

@@ -198,7 +198,12 @@ def test_learn_weights_finds_the_informative_block() -> None:
 
 
 def test_query_models_equals_a_query_under_each_models_weights(tour) -> None:
-    idx, images = tour
+    from server.vision.index import CHANGED_WEIGHTS
+
+    one, images = tour
+    idx = TourIndex(EngineParams(changed_weights=CHANGED_WEIGHTS))
+    idx.add([one.features(i) for i in range(one.n_images)], one.states)
+    idx.set_weights(one.weights)
     models = idx.model_weights()
     assert len(models) == 2 and models[1][-1] == 1.0  # the tour's, then the change-robust
     frame = extract(shifted(images[3], 5))
