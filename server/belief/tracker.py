@@ -377,7 +377,7 @@ class Tracker:
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
-        stacked = lik.ndim == 2
+        stacked = lik.ndim == 2 and len(lik) > 1  # one model: nothing to weigh
         if lik.shape[-1:] != (m.n_fine,) or lik.ndim not in (1, 2) or len(lik) == 0:
             raise InvalidLikelihoodError(
                 f"likelihood has shape {lik.shape}, expected ({m.n_fine},) or (K, {m.n_fine}); "

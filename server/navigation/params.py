@@ -83,9 +83,9 @@ class NavigationParams:
     * ``place_dock_away`` (pi rad): place docking gives up (the round trip takes over) once the
       robot has turned this far while docking with the belief off the goal. At the place its
       spin images show all round; a turn that mostly sees elsewhere says a look-alike view
-      started the docking. In the simulated home, under changed light, one view of the living
-      room passed for the entry: docking started there, went on although for most of each
-      turn the belief said "living room", and said "arrived" 5.3 m from the entry.
+      started the docking. In a simulated home, under changed light, one view of a place passed
+      for the goal: docking started there, went on although for most of each turn the belief
+      named the place the robot was really in, and said "arrived" 5.3 m from the goal.
     * ``dock_zooms`` ((1.3, 1.69)): both dockings read the scale through the frame zoomed in
       and out by each of these factors as well as as it is
       (:func:`server.vision.homing.homing_scale_zoomed`; four more feature extractions on a

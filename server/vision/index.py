@@ -22,8 +22,9 @@ Query, step by step:
    an image outside the candidates gets half the smallest candidate similarity of its state; a
    floor keeps every similarity > 0. Per state: the max over its images (eq. 2).
 
-Learned weights (:func:`learn_weights`): per tour, projected gradient descent on a soft triplet
-loss so that images of the same state are near and images of different states far.
+The weights are learned per tour (:func:`server.vision.learning.learn_weights`); with
+``EngineParams.changed_weights`` set, :meth:`TourIndex.query_models` answers under a second,
+change-robust set of weights too.
 """
 
 from __future__ import annotations
@@ -377,12 +378,10 @@ class TourIndex:
         np.maximum(out, 0.0, out=out)
         return out
 
-    def signature_distances(
-        self, query: ImageFeatures, weights: npt.ArrayLike | None = None
-    ) -> npt.NDArray[np.float32]:
+    def signature_distances(self, query: ImageFeatures) -> npt.NDArray[np.float32]:
         """First pass: ``(n_images,) float32`` weighted signature distance to every image,
-        ``sum_t w_t ||q_t - x_t||^2`` (``weights``: ``(T,)``, default the tour's)."""
-        w = self._weights if weights is None else _normalise_weights(weights, self._n_blocks)
+        ``sum_t w_t ||q_t - x_t||^2``, with the tour's weights."""
+        w = self._weights
         return self.block_distances(query, w > 0) @ w.astype(np.float32)
 
     def _block_pairs(self) -> list[tuple[int, int]]:

@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.vision.augment import ChangeParams, photometric_change
-from server.vision.features import extract
+from server.vision.features import extract, signature_length
 from server.vision.index import (
     EngineParams,
     FloatArray,
@@ -119,7 +119,7 @@ def changed_views(
     each at 320x240), so about 1.5 s with the defaults, once per tour.
     """
     params = params or EngineParams()
-    s = int(_block_bounds(params.features)[-1])
+    s = signature_length(params.features)
     if n_images == 0 or learn.changed_images == 0:
         return ChangedViews(np.zeros((0, s), np.float32), np.zeros(0, np.int64))
     chosen = np.unique(np.linspace(0, n_images - 1, min(learn.changed_images, n_images)).round())
