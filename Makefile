@@ -11,6 +11,8 @@ $(STAMP): pyproject.toml scripts/setup-system.sh
 	./scripts/setup-system.sh
 	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
+	# OpenCV with contrib replaced opencv-python-headless: both write cv2/, never keep both
+	$(VENV)/bin/pip uninstall -y -q opencv-python-headless 2>/dev/null || true
 	$(VENV)/bin/pip install -q -e '.[dev]'
 	touch $(STAMP)
 
@@ -27,7 +29,8 @@ serve: $(STAMP)
 	$(VENV)/bin/teachrepeat serve
 
 screenshot: $(STAMP)
-	DASHBOARD_SCREENSHOT=docs/img/dashboard.png $(VENV)/bin/pytest -q tests/e2e/test_e2e_dashboard.py
+	DASHBOARD_SCREENSHOT=docs/img/dashboard.png TIMELINE_SCREENSHOT=docs/img/timeline.png \
+		$(VENV)/bin/pytest -q tests/e2e/test_e2e_dashboard.py tests/e2e/test_e2e_timeline.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TypeVar
 
 import httpx
 from pydantic import BaseModel, TypeAdapter
 
+from robot_client import pinning
+from robot_client.pinning import UntrustedServerError
 from server import schemas
 
 M = TypeVar("M", bound=BaseModel)
@@ -28,7 +31,16 @@ class TeachRepeatClient:
     """One robot's (or the admin's) connection to a teachrepeat server.
 
     Keeps one HTTP connection alive. ``retries`` > 0 retries connection failures with
-    exponential backoff (``backoff_s``, doubling), for a server that restarts.
+    exponential backoff (``backoff_s``, doubling), for a server that restarts. A request
+    refused as too many (429) is sent again after the ``Retry-After`` the server gives, while
+    the waits add up to at most ``max_wait_s``; then the 429 is raised as :class:`ApiError`.
+
+    Over ``https://``, ``ca_cert`` (a copy of the server's ``cert.pem``) and ``fingerprint``
+    (its SHA-256, hex with or without colons) pin the server's certificate
+    (:func:`robot_client.pinning.ssl_context`): a server with another certificate fails the
+    TLS handshake, before the token is sent, with :class:`UntrustedServerError` (never
+    retried). Without either, the system's certificate authorities decide. ``transport``
+    (tests) replaces the network, and with it TLS.
     """
 
     def __init__(
@@ -39,15 +51,27 @@ class TeachRepeatClient:
         timeout_s: float = 10.0,
         retries: int = 0,
         backoff_s: float = 0.2,
+        max_wait_s: float = 10.0,
+        ca_cert: Path | None = None,
+        fingerprint: str | None = None,
         transport: httpx.BaseTransport | None = None,
     ) -> None:
+        context = pinning.ssl_context(ca_cert=ca_cert, fingerprint=fingerprint)
+        if context is not None and not base_url.startswith("https://"):
+            raise ValueError(
+                f"{base_url}: a pinned certificate (--ca-cert, --fingerprint) needs an "
+                "https:// server URL; over http:// the token would travel in clear"
+            )
         self._http = httpx.Client(
             base_url=base_url.rstrip("/"),
             headers={"Authorization": f"Bearer {token}"},
             timeout=timeout_s,
+            verify=True if context is None else context,
             transport=transport,
         )
+        self.ca_cert = ca_cert
         self.retries = retries
+        self.max_wait_s = max_wait_s
         self.backoff_s = backoff_s
 
     def close(self) -> None:
@@ -62,16 +86,16 @@ class TeachRepeatClient:
     # --- plumbing -------------------------------------------------------------------------
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
-        delay = self.backoff_s
-        for attempt in range(self.retries + 1):
-            try:
-                response = self._http.request(method, path, **kwargs)
+        waited = 0.0
+        while True:
+            response = self._send(method, path, **kwargs)
+            if response.status_code != 429:
                 break
-            except httpx.TransportError:
-                if attempt == self.retries:
-                    raise
-                time.sleep(delay)
-                delay *= 2
+            wait = _retry_after_s(response)
+            if wait is None or waited + wait > self.max_wait_s:
+                break
+            time.sleep(wait)  # rate-limited: wait as told, then send it again
+            waited += wait
         if response.status_code >= 400:
             try:
                 body = response.json()
@@ -80,11 +104,31 @@ class TeachRepeatClient:
                 raise ApiError(response.status_code, response.text) from None
         return response
 
+    def _send(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        delay = self.backoff_s
+        for attempt in range(self.retries + 1):
+            try:
+                return self._http.request(method, path, **kwargs)
+            except httpx.TransportError as exc:
+                refused = pinning.explain(exc, ca_cert=self.ca_cert)
+                if refused is not None:
+                    raise UntrustedServerError(refused) from exc
+                if attempt == self.retries:
+                    raise
+                time.sleep(delay)
+                delay *= 2
+        raise AssertionError("unreachable")  # pragma: no cover
+
     def _call(self, model: type[M], method: str, path: str, **kwargs: Any) -> M:
         return model.model_validate_json(self._request(method, path, **kwargs).content)
 
     def _list(self, item: type[M], path: str) -> list[M]:
         return TypeAdapter(list[item]).validate_json(self._request("GET", path).content)  # type: ignore[valid-type]
+
+    def health(self) -> dict[str, Any]:
+        """The server's ``/health`` answer (needs no token): ``{"status": "ok", ...}``."""
+        body: dict[str, Any] = self._request("GET", "/health").json()
+        return body
 
     # --- admin ----------------------------------------------------------------------------
 
@@ -124,8 +168,11 @@ class TeachRepeatClient:
     def state(self, robot: str) -> schemas.RobotState:
         return self._call(schemas.RobotState, "GET", f"/robots/{robot}/state")
 
-    def start_teaching(self, robot: str, tour_id: int) -> schemas.TeachingState:
-        body = schemas.TeachStart(tour=tour_id).model_dump()
+    def start_teaching(
+        self, robot: str, tour_id: int, *, record: bool | None = None
+    ) -> schemas.TeachingState:
+        """Begin teaching ``tour_id``; ``record``: record it (``None``: the server decides)."""
+        body = schemas.TeachStart(tour=tour_id, record=record).model_dump(exclude_none=True)
         return self._call(schemas.TeachingState, "POST", f"/robots/{robot}/teach/start", json=body)
 
     def mark_location(self, robot: str, name: str) -> schemas.MarkResult:
@@ -142,13 +189,15 @@ class TeachRepeatClient:
         w: float = 0.0,
         depth: Sequence[float] | None = None,
         timeout: float | None = None,
+        pose: Sequence[float] | None = None,
     ) -> schemas.FrameResult | schemas.NavigationFrameResult:
         """Send a frame: appended while teaching, answered with a motion command while
         navigating (a :class:`~server.schemas.NavigationFrameResult`). ``timeout`` (s)
-        overrides the client's for this request."""
-        params: dict[str, Any] = _meta(timestamp, v, w)
+        overrides the client's for this request; ``pose`` ``(x, y, theta)`` (m, m, rad) is
+        where the camera was, kept with a taught image."""
+        params: dict[str, Any] = _meta(timestamp, v, w, pose)
         if depth is not None:
-            params["depth"] = [round(float(r), 3) for r in depth]
+            params["depth"] = [_wire_range(r) for r in depth]
         response = self._request(
             "POST",
             f"/robots/{robot}/frames",
@@ -160,11 +209,20 @@ class TeachRepeatClient:
         return _FRAME_RESULT.validate_json(response.content)
 
     def goto(
-        self, robot: str, location: str, *, tour: int | None = None, timeout_s: float = 120.0
+        self,
+        robot: str,
+        location: str,
+        *,
+        tour: int | None = None,
+        record: bool | None = None,
+        timeout_s: float = 120.0,
     ) -> schemas.TaskPublic:
-        """Start navigating to ``location``. The first goto on a freshly taught tour may wait
-        while the server prepares it (features, weights), hence the long ``timeout_s``."""
-        body = schemas.GotoRequest(location=location, tour=tour).model_dump()
+        """Start navigating to ``location``; ``record``: record the task (``None``: the server
+        decides). The first goto on a freshly taught tour may wait while the server prepares
+        it (features, weights), hence the long ``timeout_s``."""
+        body = schemas.GotoRequest(location=location, tour=tour, record=record).model_dump(
+            exclude_none=True
+        )
         return self._call(
             schemas.TaskPublic, "POST", f"/robots/{robot}/goto", json=body, timeout=timeout_s
         )
@@ -172,14 +230,29 @@ class TeachRepeatClient:
     def stop(self, robot: str) -> schemas.TaskPublic:
         return self._call(schemas.TaskPublic, "POST", f"/robots/{robot}/stop")
 
+    def recordings(self, robot: str) -> list[schemas.RecordingPublic]:
+        """The robot's recordings, newest first."""
+        return self._list(schemas.RecordingPublic, f"/robots/{robot}/recordings")
+
+    def recording(self, robot: str, name: str) -> bytes:
+        """The MCAP bytes of the robot's recording ``name``."""
+        return self._request("GET", f"/robots/{robot}/recordings/{name}").content
+
     def upload_spin_image(
-        self, robot: str, jpeg: bytes, *, timestamp: float, v: float = 0.0, w: float = 0.0
+        self,
+        robot: str,
+        jpeg: bytes,
+        *,
+        timestamp: float,
+        v: float = 0.0,
+        w: float = 0.0,
+        pose: Sequence[float] | None = None,
     ) -> schemas.ImageStored:
         return self._call(
             schemas.ImageStored,
             "POST",
             f"/robots/{robot}/teach/spin",
-            params=_meta(timestamp, v, w),
+            params=_meta(timestamp, v, w, pose),
             content=jpeg,
             headers={"Content-Type": "image/jpeg"},
         )
@@ -191,10 +264,31 @@ class TeachRepeatClient:
         return self._call(schemas.TeachingEnded, "POST", f"/robots/{robot}/teach/abort")
 
 
-def _meta(timestamp: float, v: float, w: float) -> dict[str, Any]:
-    return schemas.FrameMeta(timestamp=timestamp, v=v, w=w).model_dump(exclude_none=True)
+def _meta(
+    timestamp: float, v: float, w: float, pose: Sequence[float] | None = None
+) -> dict[str, Any]:
+    return schemas.FrameMeta(
+        timestamp=timestamp, v=v, w=w, pose=None if pose is None else [float(x) for x in pose]
+    ).model_dump(exclude_none=True)
+
+
+def _wire_range(r: float) -> float:
+    """One depth range as the server takes it: a ray that saw nothing (inf, NaN) or saw
+    beyond ``schemas.MAX_DEPTH_M`` is sent as that maximum; millimetres are enough."""
+    r = float(r)
+    if not r <= schemas.MAX_DEPTH_M:  # inf, NaN or too far
+        return schemas.MAX_DEPTH_M
+    return round(max(r, 0.0), 3)
 
 
 _FRAME_RESULT: TypeAdapter[schemas.FrameResult | schemas.NavigationFrameResult] = TypeAdapter(
     schemas.AnyFrameResult
 )
+
+
+def _retry_after_s(response: httpx.Response) -> float | None:
+    """The seconds a 429 answer says to wait (``Retry-After``), or ``None`` without one."""
+    try:
+        return max(0.0, float(response.headers["retry-after"]))
+    except (KeyError, ValueError):
+        return None

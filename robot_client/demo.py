@@ -100,11 +100,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         with TeachRepeatClient(server.url, admin_token) as admin:
             token = _robot_token(admin, settings.db.parent / f"{DEMO_ROBOT}.token")
-            tours = {t.name: t for t in admin.tours()}
         with (
             TeachRepeatClient(server.url, token, retries=3) as client,
             SimWorld(plan, condition="same", seed=seed) as teach_world,
         ):
+            tours = {t.name: t for t in client.tours()}
             if tour_name not in tours or tours[tour_name].edges == 0 or args.reteach:
                 name = tour_name
                 if tour_name in tours:

@@ -114,7 +114,8 @@ def recorded_steps(
             raise RuntimeError("the simulated camera returned no frame")
         st = item.step
         jpeg = encode_jpeg(image, params.jpeg_quality)
-        yield RecordedStep(item.kind, item.place, st.t, st.v, st.w, jpeg)
+        pose = (st.pose.x, st.pose.y, st.pose.theta)
+        yield RecordedStep(item.kind, item.place, st.t, st.v, st.w, jpeg, pose)
 
 
 def record_tour(
@@ -151,11 +152,13 @@ def upload_tour(
                 continue
             if item.kind == "spin":
                 client.upload_spin_image(
-                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, pose=item.pose
                 )
                 label = f"spin {item.place}"
             else:
-                client.upload_frame(robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w)
+                client.upload_frame(
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, pose=item.pose
+                )
                 label = f"to {item.place}"
             if on_frame:
                 on_frame(label)

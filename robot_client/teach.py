@@ -26,6 +26,17 @@ from server import schemas
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--server", required=True, help="server URL, e.g. http://127.0.0.1:8000")
     parser.add_argument("--token", required=True, help="the robot's bearer token")
+    parser.add_argument(
+        "--ca-cert",
+        type=Path,
+        metavar="FILE",
+        help="trust only this certificate (a copy of the server's cert.pem; https:// only)",
+    )
+    parser.add_argument(
+        "--fingerprint",
+        metavar="SHA256",
+        help="the server certificate's SHA-256 fingerprint, as `teachrepeat cert` prints it",
+    )
     parser.add_argument("--tour", required=True, help="tour name (created when missing)")
     parser.add_argument("--frames", required=True, type=Path, help="folder of images, in order")
     parser.add_argument("--marks", required=True, type=Path, help="CSV: frame index, place name")
@@ -80,8 +91,12 @@ def teach_folder(
     fps: float = 10.0,
     speed: float = 0.3,
     progress: bool = True,
+    along_line: bool = False,
 ) -> TeachReport:
-    """Teach ``tour`` from the images in ``frames`` with the places in ``marks``."""
+    """Teach ``tour`` from the images in ``frames`` with the places in ``marks``. With
+    ``along_line`` every image carries a pose as if the route were straight (frame k at
+    ``k * speed / fps`` metres along x, facing +x), the odometry of a robot driving it at
+    ``speed``: a metric map for Monte-Carlo localisation where the folder has none."""
     me = client.whoami()
     if me.robot is None:
         raise ApiError(403, "teaching needs a robot token, not the admin token", "forbidden")
@@ -105,11 +120,12 @@ def teach_folder(
                     skipped += 1
                     continue
                 timestamp = index / fps
+                pose = (index * speed / fps, 0.0, 0.0) if along_line else None
                 if index in marks:
                     client.mark_location(robot, marks[index])
-                    client.upload_spin_image(robot, jpeg, timestamp=timestamp)
+                    client.upload_spin_image(robot, jpeg, timestamp=timestamp, pose=pose)
                 else:
-                    client.upload_frame(robot, jpeg, timestamp=timestamp, v=speed)
+                    client.upload_frame(robot, jpeg, timestamp=timestamp, v=speed, pose=pose)
                 uploaded += 1
         ended = client.finish_teaching(robot)
     except BaseException:
@@ -124,7 +140,9 @@ def teach_folder(
 def run(args: argparse.Namespace) -> int:
     try:
         marks = read_marks(args.marks)
-        with TeachRepeatClient(args.server, args.token) as client:
+        with TeachRepeatClient(
+            args.server, args.token, ca_cert=args.ca_cert, fingerprint=args.fingerprint
+        ) as client:
             report = teach_folder(
                 client,
                 tour=args.tour,

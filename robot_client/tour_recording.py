@@ -3,8 +3,9 @@
 Walking and rendering a tour is the slow part of teaching a simulated home; a benchmark that
 starts several servers (one per worker) records the tour once and uploads the recording to
 each of them through the same REST calls. The file is a NumPy ``.npz`` archive (no pickles):
-the JPEG bytes of every image end to end, their offsets, the step kinds, times and motions,
-and a JSON header (format version, the plan's SHA-256, the route, the place names).
+the JPEG bytes of every image end to end, their offsets, the step kinds, times and motions, the
+simulator's true pose of every image (format 2; NaN where there is none), and a JSON header
+(format version, the plan's SHA-256, the route, the place names).
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = 1
-"""Version of the file layout; a file of another version is refused (teach again)."""
+FORMAT = 2
+"""Version of the file layout written; :data:`READABLE` ones are read, others refused."""
+READABLE = (1, 2)
+"""Format 1 has no poses (its steps read with ``pose`` None)."""
 
 KINDS = ("frame", "spin", "mark")
 
@@ -25,7 +28,8 @@ KINDS = ("frame", "spin", "mark")
 class RecordedStep:
     """One moment of a tour: ``kind`` ``"frame"`` (an image of the path to ``place``),
     ``"spin"`` (an image of the spin at ``place``) or ``"mark"`` ("this is ``place``": no
-    image). ``t`` robot seconds, ``v`` m/s and ``w`` rad/s executed while the image was taken."""
+    image). ``t`` robot seconds, ``v`` m/s and ``w`` rad/s executed while the image was taken;
+    ``pose`` ``(x, y, theta)`` (m, m, rad) where the camera was, or ``None``."""
 
     kind: str
     place: str
@@ -33,6 +37,7 @@ class RecordedStep:
     v: float
     w: float
     jpeg: bytes | None
+    pose: tuple[float, float, float] | None = None
 
 
 class RecordingError(ValueError):
@@ -76,6 +81,10 @@ class TourRecording:
                 ),
                 offsets=offsets,
                 jpeg=np.frombuffer(b"".join(blobs), dtype=np.uint8),
+                pose=np.array(
+                    [s.pose if s.pose is not None else (np.nan,) * 3 for s in self.steps],
+                    dtype=np.float64,
+                ).reshape(-1, 3),
             )
         tmp.replace(path)
 
@@ -89,14 +98,15 @@ class TourRecording:
         try:
             with np.load(path, allow_pickle=False) as z:
                 header = json.loads(bytes(z["header"]).decode())
-                if header.get("format") != FORMAT:
+                if header.get("format") not in READABLE:
                     raise RecordingError(
                         f"{path} is a tour recording of format {header.get('format')}, this "
-                        f"version reads {FORMAT}; delete it and teach again"
+                        f"version reads {READABLE}; delete it and teach again"
                     )
                 names = header["places"]
                 kind, place, tvw = z["kind"], z["place"], z["tvw"]
                 offsets, jpeg = z["offsets"], z["jpeg"].tobytes()
+                poses = z["pose"] if "pose" in z.files else np.full((len(kind), 3), np.nan)
         except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
             if isinstance(exc, RecordingError):
                 raise
@@ -112,8 +122,16 @@ class TourRecording:
                     float(tvw[k, 1]),
                     float(tvw[k, 2]),
                     blob if KINDS[int(kind[k])] != "mark" else None,
+                    _pose(poses[k]),
                 )
             )
         return cls(
             plan_sha256=str(header["plan_sha256"]), route=tuple(header["route"]), steps=tuple(steps)
         )
+
+
+def _pose(row: np.ndarray) -> tuple[float, float, float] | None:
+    """A stored pose row, or ``None`` when it holds NaN (no pose)."""
+    if not np.all(np.isfinite(row)):
+        return None
+    return (float(row[0]), float(row[1]), float(row[2]))

@@ -16,6 +16,7 @@ import networkx as nx
 import numpy as np
 
 from robot_client.client import ApiError, TeachRepeatClient
+from robot_client.judge_localisation import LocalisationJudge
 from robot_client.navigate import LoopParams, StepHook, drive
 from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.paths import NoPathError, path_length, shortest_path
@@ -72,6 +73,13 @@ class TrialResult:
     final_behaviour: str | None  # the behaviour of the last frame
     final_reason: str | None  # why that behaviour chose the last command
     cause: str | None  # why it failed (one of CAUSES), None on success
+    # localisation against the truth (robot_client.judge_localisation)
+    first_correct_s: float | None = None  # from the start to the first right "localised"
+    wrong_claims: int = 0  # runs of frames "localised" on a wrong state
+    wrong_claim_frames: int = 0
+    disambiguating_frames: int = 0  # the belief held separated hypotheses
+    separating_frames: int = 0  # ... and the action was chosen to separate them
+    mcl_error_m: tuple[float, ...] = ()  # Monte-Carlo position error of every frame, m
 
     @property
     def path_ratio(self) -> float:
@@ -180,10 +188,12 @@ def run_trial(
     tour: schemas.TourGraphPublic | None = None,
     max_steps: int = 2000,
     on_step: StepHook | None = None,
+    record: bool | None = None,
 ) -> TrialResult:
     """Send the robot to ``goal`` from wherever it stands and drive until the task ends.
 
-    ``tour`` (the taught graph) gives the shortest taught route for the path ratio."""
+    ``tour`` (the taught graph) gives the shortest taught route for the path ratio;
+    ``record``: ask the server to record the task (``None``: its setting decides)."""
     place = next(p for p in plan.places if p.name == goal)
     pose = robot.pose
     start = (pose.x, pose.y, pose.theta)
@@ -197,9 +207,11 @@ def run_trial(
     t0, odo0 = robot.now(), robot.odometer
     log: list[StepLog] = []
     behaviours: dict[str, int] = {}
+    localisation = LocalisationJudge(plan, tour)
 
     def judge(step: int, result: schemas.NavigationFrameResult) -> None:
         pose, command = robot.pose, result.command
+        localisation.observe(robot.now(), pose.x, pose.y, pose.theta, result)
         name = command.behaviour or "none"
         behaviours[name] = behaviours.get(name, 0) + 1
         log.append(
@@ -216,7 +228,7 @@ def run_trial(
         if on_step is not None:
             on_step(step, result)
 
-    client.goto(robot_name, goal, tour=None if tour is None else tour.id)
+    client.goto(robot_name, goal, tour=None if tour is None else tour.id, record=record)
     outcome = drive(
         client,
         robot_name,
@@ -263,6 +275,7 @@ def run_trial(
         final_behaviour=log[-1].behaviour if log else None,
         final_reason=None if outcome.last is None else outcome.last.command.reason,
         cause=cause(success=success, state=state, reason=reason, wrong_arrival=wrong, log=log),
+        **localisation.summary(),
     )
 
 

@@ -1,4 +1,4 @@
-"""The ``teachrepeat`` command: ``serve``, ``robot ...``, ``demo`` and ``bench ...``.
+"""The ``teachrepeat`` command: ``serve``, ``cert``, ``robot ...``, ``demo`` and ``bench ...``.
 
 Each sub-command lives in its own module with ``add_arguments(parser)`` and ``run(args) -> int``;
 this file only wires them together. Command modules keep heavy imports (OpenCV, MuJoCo, the
@@ -25,6 +25,17 @@ from collections.abc import Sequence
 # (command path, module, help). The module provides add_arguments(parser) and run(args) -> int.
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("serve",), "server.serve", "run the API server (and the dashboard)"),
+    (
+        ("household",),
+        "server.households_cli",
+        "create households, set their login passwords, list them",
+    ),
+    (("cert",), "server.cert", "make a self-signed TLS certificate and key for a home server"),
+    (
+        ("replay",),
+        "server.recording.cli",
+        "a recorded navigation task through the server's step again: what differs now",
+    ),
     (("robot", "teach"), "robot_client.teach", "replay a folder of images as a teaching tour"),
     (("demo",), "robot_client.demo", "the simulated home, taught and navigated end to end"),
     (

@@ -6,11 +6,14 @@ handed to :func:`server.app.create_app`; nothing is built at import time.
 
 from __future__ import annotations
 
+import ipaddress
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from server.ratelimit import RateLimits
 
 DEFAULT_DATA_DIR = Path("data")
 """Relative to the working directory the server is started in."""
@@ -19,7 +22,11 @@ DEFAULT_DATA_DIR = Path("data")
 class Settings(BaseSettings):
     """Everything that differs between deployments. Environment: ``TEACHREPEAT_<NAME>``."""
 
-    model_config = SettingsConfigDict(env_prefix="TEACHREPEAT_", extra="ignore")
+    # hide_input_in_errors: an error of the whole model (the TLS pair check) would otherwise
+    # print every setting, the admin token from the environment included
+    model_config = SettingsConfigDict(
+        env_prefix="TEACHREPEAT_", extra="ignore", hide_input_in_errors=True
+    )
 
     db: Path = Field(
         default=DEFAULT_DATA_DIR / "teachrepeat.sqlite",
@@ -32,8 +39,25 @@ class Settings(BaseSettings):
     )
     host: str = Field(default="127.0.0.1", description="Interface the API binds to.")
     port: int = Field(default=8000, ge=0, le=65535, description="API port; 0 = any free port.")
+    tls_cert: Path | None = Field(
+        default=None,
+        description="PEM certificate to serve the API over HTTPS with (`teachrepeat cert` makes "
+        "a self-signed one for a home); needs `tls_key`. None = plain HTTP.",
+    )
+    tls_key: Path | None = Field(
+        default=None,
+        description="PEM private key of `tls_cert`, unencrypted (keep it mode 0600).",
+    )
     dashboard_port: int | None = Field(
         default=8080, ge=0, le=65535, description="Dashboard port; 0 = any free port; None = off."
+    )
+    dashboard_login: bool | None = Field(
+        default=None,
+        description="Whether the dashboard asks for a household login and then shows only that "
+        "household (web/gate.py). None = automatic: it does on any host that is not loopback "
+        "(127.0.0.0/8, ::1, localhost). True: also on loopback. False: never; refused off "
+        "loopback. The loopback default is one dashboard showing every household to whoever "
+        "can reach 127.0.0.1, as before logins existed.",
     )
     concurrent_steps: int = Field(
         default=1,
@@ -50,6 +74,35 @@ class Settings(BaseSettings):
         'dotted names for nested ones), JSON in the environment: {"dock_second_axis": false, '
         '"motion.unstick_s": 6}. Unknown names and wrong types stop the server at start.',
     )
+    record: bool = Field(
+        default=False,
+        description="Record every teaching tour and navigation task to an MCAP file in "
+        "`record_dir` (docs/recording.md). A task's own `record` (POST .../goto, "
+        ".../teach/start) overrides it for that task.",
+    )
+    record_dir: Path | None = Field(
+        default=None,
+        description="Folder of the recordings, one sub-folder per household. None = "
+        "`recordings` beside the database.",
+    )
+    record_keep_files: int = Field(
+        default=200,
+        ge=1,
+        description="Most recordings kept (all households together); when a recording ends, "
+        "the oldest finished ones are deleted until there are no more.",
+    )
+    record_keep_mb: float = Field(
+        default=2000.0,
+        gt=0,
+        description="Most megabytes of recordings kept (all households together); the oldest "
+        "finished ones are deleted first.",
+    )
+    record_file_mb: float = Field(
+        default=500.0,
+        gt=0,
+        description="A recording takes no more frames past this size, megabytes (a task that "
+        "runs for hours); it says so in its log and ends with the task.",
+    )
     max_image_bytes: int = Field(
         default=4 * 1024 * 1024, gt=0, description="Largest accepted image body, bytes."
     )
@@ -59,3 +112,83 @@ class Settings(BaseSettings):
     max_image_side: int = Field(default=8192, gt=0, description="Largest accepted width or height.")
     min_image_side: int = Field(default=16, gt=0, description="Smallest accepted width or height.")
     max_location_name: int = Field(default=64, gt=0, description="Longest location name, chars.")
+    audit_days: float = Field(
+        default=365.0,
+        gt=0,
+        description="Days an audit entry is kept; older ones are deleted (checked hourly).",
+    )
+    login_hours: float = Field(
+        default=12.0, gt=0, le=24 * 90, description="Hours a household login stays valid."
+    )
+    rate_token_per_s: float = Field(
+        default=RateLimits.token_per_s, gt=0, description="Sustained requests/s per token."
+    )
+    rate_token_burst: float = Field(
+        default=RateLimits.token_burst, ge=1, description="Requests at once per token."
+    )
+    rate_address_per_s: float = Field(
+        default=RateLimits.address_per_s, gt=0, description="Sustained requests/s per address."
+    )
+    rate_address_burst: float = Field(
+        default=RateLimits.address_burst, ge=1, description="Requests at once per address."
+    )
+    failed_auth_per_s: float = Field(
+        default=RateLimits.failed_auth_per_s,
+        gt=0,
+        description="Failed authentications forgiven per second and address.",
+    )
+    failed_auth_burst: float = Field(
+        default=RateLimits.failed_auth_burst,
+        ge=1,
+        description="Failed authentications from one address before its requests wait (429).",
+    )
+
+    def recordings_dir(self) -> Path:
+        """Where recordings go: ``record_dir``, or ``recordings`` beside the database."""
+        return self.record_dir if self.record_dir is not None else self.db.parent / "recordings"
+
+    def rate_limits(self) -> RateLimits:
+        return RateLimits(
+            token_per_s=self.rate_token_per_s,
+            token_burst=self.rate_token_burst,
+            address_per_s=self.rate_address_per_s,
+            address_burst=self.rate_address_burst,
+            failed_auth_per_s=self.failed_auth_per_s,
+            failed_auth_burst=self.failed_auth_burst,
+        )
+
+    def dashboard_needs_login(self) -> bool:
+        """Whether the dashboard is served behind the login (see ``dashboard_login``).
+        Raises ValueError for ``dashboard_login`` false on a host that is not loopback."""
+        loopback = is_loopback(self.host)
+        if self.dashboard_login is False and not loopback:
+            raise ValueError(
+                f"dashboard_login is off, but host {self.host} is not a loopback address: "
+                "anyone who can reach it would see and drive every household's robots. Leave "
+                "dashboard_login unset (a household login is then required), serve on "
+                "127.0.0.1, or turn the dashboard off with --dashboard-port -1"
+            )
+        return not loopback if self.dashboard_login is None else self.dashboard_login
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> Settings:
+        """HTTPS needs the certificate and its key: both or neither."""
+        if (self.tls_cert is None) != (self.tls_key is None):
+            given, missing = ("cert", "key") if self.tls_key is None else ("key", "cert")
+            raise ValueError(
+                f"TLS needs both a certificate and its key: tls_{given} is set but not "
+                f"tls_{missing}; set --tls-{missing} (or TEACHREPEAT_TLS_{missing.upper()}) "
+                f"too, or neither for plain HTTP"
+            )
+        return self
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` names only this machine: ``localhost``, 127.0.0.0/8 or ::1 (``0.0.0.0``
+    and ``::`` are every interface, not loopback; any other name may be reachable)."""
+    if host.strip().lower().rstrip(".") == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False

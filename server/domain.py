@@ -12,7 +12,8 @@ Conventions used everywhere in the core
   ``n_locations + edge_offsets[j] + k``.
 * **Canonical image order** (``n_images``): every location's spin images (locations in
   order), then every edge's images (edges in order). The engine index is built in this order;
-  ``image_ids``, ``image_state`` and ``image_fine`` are aligned with it.
+  ``image_ids``, ``image_state``, ``image_fine``, ``image_pose`` and ``image_entropy`` are
+  aligned with it.
 """
 
 from __future__ import annotations
@@ -76,10 +77,42 @@ class Edge:
 
 @dataclass(frozen=True)
 class TourGraph:
-    """An immutable snapshot of one tour's graph, with the index maps the core needs."""
+    """An immutable snapshot of one tour's graph, with the index maps the core needs.
+
+    Two optional per-image arrays, in canonical image order, travel with it:
+
+    * ``image_pose``: ``(n_images, 3) float64`` the pose each image was taught at (x, y in
+      metres, heading in radians, in the teaching robot's odometry frame); a row of NaN where
+      the robot sent none; ``None``: no image has one.
+    * ``image_entropy``: ``(n_images,) float64`` the distinctiveness of every image, the
+      entropy of its retrieval scores against the whole tour in nats (seed 000; low =
+      distinctive, see :mod:`server.vision.distinctiveness`); NaN where not computed yet;
+      ``None``: not computed.
+    """
 
     locations: tuple[Location, ...]
     edges: tuple[Edge, ...] = field(default=())
+    image_pose: FloatArray | None = None
+    image_entropy: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        n = sum(len(loc.image_ids) for loc in self.locations) + sum(e.n_images for e in self.edges)
+        if self.image_pose is not None and np.shape(self.image_pose) != (n, 3):
+            raise ValueError(f"image_pose has shape {np.shape(self.image_pose)}, expected ({n}, 3)")
+        if self.image_entropy is not None and np.shape(self.image_entropy) != (n,):
+            raise ValueError(
+                f"image_entropy has shape {np.shape(self.image_entropy)}, expected ({n},)"
+            )
+
+    @property
+    def has_poses(self) -> bool:
+        """Whether every image carries a taught pose (a metric map of the taught paths)."""
+        return self.image_pose is not None and bool(np.all(np.isfinite(self.image_pose)))
+
+    @property
+    def has_entropy(self) -> bool:
+        """Whether every image's distinctiveness is known."""
+        return self.image_entropy is not None and bool(np.all(np.isfinite(self.image_entropy)))
 
     @property
     def n_locations(self) -> int:
@@ -147,6 +180,26 @@ class TourGraph:
         ]
         parts.append(self.n_locations + np.arange(int(self.edge_offsets[-1]), dtype=np.int64))
         return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+    @cached_property
+    def image_along(self) -> FloatArray:
+        """``(n_images,)`` metres the taught robot had driven along its edge at each image
+        (:meth:`Edge.metres_along`); 0 for a place's spin images."""
+        parts = [np.zeros(self.n_images - int(self.edge_offsets[-1]))]
+        parts += [e.metres_along() for e in self.edges]
+        return np.concatenate(parts)
+
+    @cached_property
+    def image_ends(self) -> IntArray:
+        """``(n_images, 2)`` int: the places at the start and the end of each image's edge
+        (a spin image: its own place, twice)."""
+        n_place = self.n_images - int(self.edge_offsets[-1])
+        out = np.empty((self.n_images, 2), dtype=np.int64)
+        out[:n_place] = self.image_state[:n_place, None]
+        for j, e in enumerate(self.edges):
+            lo = n_place + int(self.edge_offsets[j])
+            out[lo : lo + e.n_images] = (e.source, e.target)
+        return out
 
     def location_index(self, name: str) -> int:
         """Index of the location called ``name``; ``KeyError`` when there is none."""

@@ -57,3 +57,14 @@ class Unavailable(DomainError):
 
     status = 503
     code = "unavailable"
+
+
+class TooMany(DomainError):
+    """Too many requests (or failed logins): retry after ``retry_after_s`` seconds."""
+
+    status = 429
+    code = "too_many_requests"
+
+    def __init__(self, message: str, retry_after_s: float) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import ssl
 import subprocess
 import sys
 import tempfile
@@ -31,12 +32,14 @@ class ServerProcess:
     db: Path
     dashboard_url: str | None = None
     admin_token: str = ADMIN
+    ca_cert: Path | None = None
+    """The certificate the server presents, when it serves over HTTPS."""
 
     def register_robot(self, name: str) -> str:
         """Register robot ``name`` with the admin token; its bearer token."""
         from robot_client.client import TeachRepeatClient
 
-        with TeachRepeatClient(self.url, self.admin_token) as admin:
+        with TeachRepeatClient(self.url, self.admin_token, ca_cert=self.ca_cert) as admin:
             return admin.register_robot(name).token
 
     def kill(self) -> None:
@@ -59,10 +62,13 @@ def start_server(
     admin_token: str = ADMIN,
     dashboard: bool = False,
     extra_env: dict[str, str] | None = None,
+    tls: tuple[Path, Path] | None = None,
 ) -> ServerProcess:
     """Run ``teachrepeat serve --db DB --port 0`` and wait until it answers ``/health``.
 
-    ``dashboard``: also start the dashboard on a free port (``dashboard_url``)."""
+    ``dashboard``: also start the dashboard on a free port (``dashboard_url``). ``tls``:
+    ``(cert, key)`` to serve over HTTPS with (``--tls-cert``, ``--tls-key``); ``/health`` is
+    then asked trusting that certificate only."""
     env = {**os.environ, "TEACHREPEAT_ADMIN_TOKEN": admin_token, **(extra_env or {})}
     env.pop("TEACHREPEAT_DB", None)
     proc = subprocess.Popen(
@@ -77,12 +83,32 @@ def start_server(
             "0",
             "--dashboard-port",
             "0" if dashboard else "-1",
+            *(["--tls-cert", str(tls[0]), "--tls-key", str(tls[1])] if tls else []),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
         env=env,
     )
+    try:
+        return _wait_until_up(proc, db, admin_token, dashboard, tls)
+    except BaseException:
+        # not up (or the caller was interrupted, e.g. SIGTERM or Ctrl-C while the server was
+        # still importing): nobody else holds the process, so stop it here
+        proc.kill()
+        proc.wait()
+        raise
+
+
+def _wait_until_up(
+    proc: subprocess.Popen[str],
+    db: Path,
+    admin_token: str,
+    dashboard: bool,
+    tls: tuple[Path, Path] | None,
+) -> ServerProcess:
+    """Read the server's address from its output and wait until ``/health`` answers, 30 s at
+    most; ``RuntimeError`` if it does not start."""
     if proc.stdout is None:
         raise RuntimeError("no stdout pipe")
     deadline = time.monotonic() + 30
@@ -94,27 +120,27 @@ def start_server(
         if not line:
             break
         lines.append(line)
-        found = re.search(r"teachrepeat API\s+(http://\S+)", line)
+        found = re.search(r"teachrepeat API\s+(https?://\S+)", line)
         if found:
             url = found.group(1)
-        found = re.search(r"dashboard\s+(http://\S+)", line)
+        found = re.search(r"dashboard\s+(https?://\S+)", line)
         if found:
             dashboard_url = found.group(1)
         if url and (dashboard_url or not dashboard):
             break
     if url is None:
-        proc.kill()
         raise RuntimeError("server did not start:\n" + "".join(lines))
     # keep draining the pipe so the server never blocks on a full stdout
     stdout = proc.stdout
     threading.Thread(target=lambda: [None for _ in stdout], daemon=True).start()
+    ca_cert = tls[0] if tls else None
+    verify = ssl.create_default_context(cafile=str(ca_cert)) if ca_cert else True
     while time.monotonic() < deadline:
         try:
-            if httpx.get(f"{url}/health", timeout=1).status_code == 200:
-                return ServerProcess(proc, url, db, dashboard_url, admin_token)
+            if httpx.get(f"{url}/health", timeout=1, verify=verify).status_code == 200:
+                return ServerProcess(proc, url, db, dashboard_url, admin_token, ca_cert)
         except httpx.TransportError:
             time.sleep(0.05)
-    proc.kill()
     raise RuntimeError("server never answered /health")
 
 

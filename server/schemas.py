@@ -6,29 +6,85 @@ Importing this module pulls in pydantic and the standard library only.
 
 from __future__ import annotations
 
-import math
+import re
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StringConstraints,
+)
 
 RobotName = Annotated[
     str,
     StringConstraints(pattern=r"^[a-z0-9][a-z0-9_-]{0,63}$"),
     Field(description="Lower-case letters, digits, '-' and '_', 1 to 64 characters."),
 ]
+_SPACE = "\t\n\v\f\r \x85\xa0\u1680\u2000-\u200a\u2028\u2029\u202f\u205f\u3000\ufeff"
+TRIMMED = f"^[^{_SPACE}](?:[\\s\\S]*[^{_SPACE}])?$"
+"""No white space at either end. The characters are listed, not ``\\s``: the OpenAPI document's
+regex (ECMAScript) and Python's disagree on what ``\\s`` is, and then a name the document
+allows would be refused, or one it forbids taken."""
+_TRIMMED = re.compile(TRIMMED)
+
+
+def _trimmed(value: str) -> str:
+    if not _TRIMMED.fullmatch(value):
+        raise ValueError("must not start or end with white space")
+    return value
+
+
 TourName = Annotated[
     str,
-    StringConstraints(strip_whitespace=True, min_length=1, max_length=100),
-    Field(description="Unique name of the tour, 1 to 100 characters."),
+    StringConstraints(min_length=1, max_length=100),
+    AfterValidator(_trimmed),
+    Field(
+        description="Unique name of the tour, 1 to 100 characters, no spaces at either end.",
+        json_schema_extra={"pattern": TRIMMED},
+    ),
 ]
 LocationName = Annotated[
     str,
-    StringConstraints(strip_whitespace=True, min_length=1, max_length=64),
-    Field(description="Name of the place, unique within its tour, 1 to 64 characters."),
+    StringConstraints(min_length=1, max_length=64),
+    AfterValidator(_trimmed),
+    Field(
+        description="Name of the place, unique within its tour, 1 to 64 characters, no spaces "
+        "at either end.",
+        json_schema_extra={"pattern": TRIMMED},
+    ),
 ]
 
 
-DbId = Annotated[int, Field(ge=1, le=2**63 - 1, description="A database id.")]
+HouseholdName = Annotated[
+    str,
+    StringConstraints(pattern=r"^[a-z0-9][a-z0-9_-]{0,63}$"),
+    Field(description="Lower-case letters, digits, '-' and '_', 1 to 64 characters."),
+]
+Password = Annotated[
+    str,
+    StringConstraints(min_length=10, max_length=256),
+    Field(description="10 to 256 characters."),
+]
+
+MAX_ID = 2**53 - 1
+"""Largest id the API takes: the largest integer a JSON number (an IEEE double) holds exactly.
+With SQLite's 2**63 - 1 as the bound, a validator that compares JSON numbers as doubles
+finds 2**63 + 191 within it (the same double) and sends what the server refuses."""
+
+
+def _json_integer(value: object) -> object:
+    """A JSON integer only: lax pydantic would also take ``true`` and ``"1"`` for 1."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError("must be an integer")
+    return value
+
+
+DbId = Annotated[
+    int, Field(ge=1, le=MAX_ID, description="A database id."), BeforeValidator(_json_integer)
+]
 
 
 class _Model(BaseModel):
@@ -36,10 +92,28 @@ class _Model(BaseModel):
 
 
 class ErrorBody(_Model):
-    """Every 4xx/5xx answer."""
+    """Every 4xx/5xx answer. 401: missing or unknown bearer token; 403: a robot token acting
+    for another robot or as the admin; 404: unknown tour, place, robot or image; 405: a method
+    the path does not have (``Allow`` lists those it has); 409: the step does not fit the
+    robot's state (not teaching, still navigating, a path too short for an edge, a place
+    without an image...); 413: an image over the byte or pixel limits; 415: a body that is not
+    a JPEG; 422: a request that breaks the schema, or an image that cannot be decoded, is too
+    small or goes back in time; 429: too many requests; 503: the database cannot be written."""
 
     detail: str = Field(description="What was wrong and what to do about it.")
     code: str = Field(description="Machine-readable error kind, e.g. 'not_found'.")
+
+
+class ServiceIndex(_Model):
+    """``GET /``: where to read about the API and where to watch the robots."""
+
+    name: Literal["teachrepeat"] = "teachrepeat"
+    version: str
+    docs: str = Field(description="Interactive API documentation (Swagger UI, served offline).")
+    openapi: str = Field(description="The OpenAPI document.")
+    dashboard: str | None = Field(
+        description="URL of the live dashboard; null when the server runs without one."
+    )
 
 
 # --- tours -------------------------------------------------------------------------------
@@ -57,11 +131,26 @@ class TourSummary(_Model):
     images: int
 
 
+_POSES = (
+    "Where each image was taken, [x, y, heading] in metres and radians in the teaching robot's "
+    "odometry frame (a simulated robot's true pose), in the order of the images; null unless "
+    "every image has one."
+)
+_ENTROPY = (
+    "Distinctiveness of each image, in the order of the images: the entropy (nats) of its "
+    "retrieval scores against the whole tour; low = only this spot looks like it, high = "
+    "look-alikes elsewhere (docs/ambiguity.md). Null until computed, a few seconds to minutes "
+    "after teaching changed the tour."
+)
+
+
 class LocationPublic(_Model):
     id: int
     name: str
     image_count: int
     image_ids: list[int] = Field(description="Spin images, in the order they were taken.")
+    poses: list[list[float]] | None = Field(default=None, description=_POSES)
+    entropy: list[float] | None = Field(default=None, description=_ENTROPY)
 
 
 class EdgePublic(_Model):
@@ -77,6 +166,8 @@ class EdgePublic(_Model):
     )
     first_image_id: int
     last_image_id: int
+    poses: list[list[float]] | None = Field(default=None, description=_POSES)
+    entropy: list[float] | None = Field(default=None, description=_ENTROPY)
 
 
 class TourGraphPublic(_Model):
@@ -91,6 +182,11 @@ class TourGraphPublic(_Model):
 
 class RobotCreate(_Model):
     name: RobotName
+    household: HouseholdName | None = Field(
+        default=None,
+        description="Household the robot belongs to. A household login registers into its own "
+        "(leave it out); the admin names one (default: 'default').",
+    )
 
 
 class RobotRegistered(_Model):
@@ -99,20 +195,37 @@ class RobotRegistered(_Model):
 
 
 class WhoAmI(_Model):
-    kind: Literal["admin", "robot"]
+    kind: Literal["admin", "robot", "household"]
     robot: str | None = Field(default=None, description="The robot's name for a robot token.")
+    household: str | None = Field(
+        default=None, description="The household of a robot token or a household login."
+    )
 
 
 class RobotPublic(_Model):
+    """A robot as its household sees it; never its token."""
+
     name: str
     created_at: float
+    household: str
+    token_active: bool = Field(description="False once its token was revoked.")
+    token_issued_at: float | None = Field(description="When the current token was issued.")
 
 
 # --- teaching ----------------------------------------------------------------------------
 
 
+RECORD_DESCRIPTION = (
+    "Record this {what} to an MCAP file (GET /robots/{{robot}}/recordings lists them): true or "
+    "false; null or absent = the server's setting (`serve --record DIR`)."
+)
+
+
 class TeachStart(_Model):
     tour: DbId = Field(description="Id of the tour to teach (create it with POST /tours).")
+    record: bool | None = Field(
+        default=None, description=RECORD_DESCRIPTION.format(what="teaching tour")
+    )
 
 
 class LocationMark(_Model):
@@ -156,32 +269,66 @@ class TeachingEnded(_Model):
 # --- frames and motion -------------------------------------------------------------------
 
 
-class FrameMeta(_Model):
-    """Query parameters that come with every frame (the body is the JPEG)."""
+MAX_TIMESTAMP_S = 1e10
+"""Latest capture time accepted, seconds: Unix time until the year 2286, or any monotonic clock."""
+MAX_LINEAR_SPEED = 5.0
+"""Largest |v| a robot may report, m/s: beyond any home robot; more is a unit or sensor error."""
+MAX_ANGULAR_SPEED = 20.0
+"""Largest |w| a robot may report, rad/s (about 3 turns a second)."""
+MAX_DEPTH_M = 1000.0
+"""Largest depth range, metres; send it (or anything far) for a ray that saw nothing."""
+MAX_POSE = 1e4
+"""Largest |x|, |y| (m) and |heading| (rad) of a pose a frame may carry."""
 
-    timestamp: float = Field(description="Capture time, seconds, non-decreasing per robot.")
-    v: float = Field(default=0.0, description="Linear velocity being executed, m/s.")
-    w: float = Field(default=0.0, description="Angular velocity being executed, rad/s.")
-    depth: list[float] | None = Field(
+DepthRange = Annotated[
+    float,
+    Field(ge=0.0, le=MAX_DEPTH_M, allow_inf_nan=False, description="Range of one ray, metres."),
+]
+PoseValue = Annotated[float, Field(ge=-MAX_POSE, le=MAX_POSE, allow_inf_nan=False)]
+
+
+class FrameMeta(_Model):
+    """Query parameters that come with every frame (the body is the JPEG). The bounds are
+    physical: a value outside them is a unit or sensor error, refused with 422 before anything
+    is stored."""
+
+    timestamp: float = Field(
+        ge=0.0,
+        le=MAX_TIMESTAMP_S,
+        allow_inf_nan=False,
+        description="Capture time, seconds, non-decreasing per robot.",
+    )
+    v: float = Field(
+        default=0.0,
+        ge=-MAX_LINEAR_SPEED,
+        le=MAX_LINEAR_SPEED,
+        allow_inf_nan=False,
+        description="Linear velocity being executed, m/s.",
+    )
+    w: float = Field(
+        default=0.0,
+        ge=-MAX_ANGULAR_SPEED,
+        le=MAX_ANGULAR_SPEED,
+        allow_inf_nan=False,
+        description="Angular velocity being executed, rad/s.",
+    )
+    depth: list[DepthRange] | None = Field(
         default=None,
         max_length=256,
         description="Optional depth profile: ranges in metres, leftmost ray first "
-        "(repeat the parameter: depth=1.2&depth=0.9...). Use a large number for 'nothing'.",
+        "(repeat the parameter: depth=1.2&depth=0.9...). Send the maximum (1000) for a ray "
+        "that saw nothing; infinity and NaN are refused.",
     )
-
-    @field_validator("timestamp", "v", "w")
-    @classmethod
-    def _finite(cls, value: float) -> float:
-        if not math.isfinite(value):
-            raise ValueError("must be a finite number")
-        return value
-
-    @field_validator("depth")
-    @classmethod
-    def _ranges(cls, value: list[float] | None) -> list[float] | None:
-        if value is not None and any(not (r >= 0) or math.isnan(r) for r in value):
-            raise ValueError("ranges must be non-negative numbers")
-        return value
+    pose: list[PoseValue] | None = Field(
+        default=None,
+        min_length=3,
+        max_length=3,
+        description="Optional pose of the camera while teaching: x and y in metres and the "
+        "heading in radians, in the robot's odometry frame (pose=x&pose=y&pose=theta; a "
+        "simulated robot sends its true pose). Taught images with poses let the server "
+        "localise the robot on a metric map as well (Monte-Carlo localisation); ignored "
+        "while navigating.",
+    )
 
 
 class FrameResult(_Model):
@@ -203,6 +350,9 @@ class GotoRequest(_Model):
     tour: DbId | None = Field(
         default=None,
         description="Tour to navigate in; defaults to the tour the robot last used.",
+    )
+    record: bool | None = Field(
+        default=None, description=RECORD_DESCRIPTION.format(what="navigation task")
     )
 
 
@@ -242,6 +392,34 @@ class BeliefPublic(_Model):
     entropy: float = Field(description="Entropy of the belief over states, nats.")
     localised: bool
     localised_state: StateProbability | None = None
+    appearance: list[float] = Field(
+        default_factory=lambda: [1.0],
+        description=(
+            "Belief over the engine's appearance models, summing to 1: the tour's own light "
+            "first, then changed light (season, lamps; see docs/localize.md)."
+        ),
+    )
+
+
+class PosePublic(_Model):
+    """Where Monte-Carlo localisation puts the robot on the map of the taught paths (in the
+    frame the taught poses were sent in), beside the topological belief, never steering it."""
+
+    x: float = Field(description="Metres.")
+    y: float = Field(description="Metres.")
+    theta: float = Field(description="Heading, radians.")
+    std_m: float = Field(description="Spread of all particles around their mean, metres.")
+    mode_mass: float = Field(description="Share of the particles within 1 m of this pose.")
+
+
+class DisambiguationPublic(_Model):
+    """The belief holds two or more separated hypotheses: where they are, and whether the
+    action was chosen to tell them apart rather than by the votes (docs/ambiguity.md)."""
+
+    between: list[StateProbability] = Field(
+        description="The most likely state of each hypothesis, with the hypothesis' mass."
+    )
+    separating: bool
 
 
 class TaskPublic(_Model):
@@ -263,6 +441,12 @@ class NavigationFrameResult(_Model):
     task: TaskPublic | None
     belief: BeliefPublic
     votes: dict[str, float] = Field(description="Vote mass of every action.")
+    pose: PosePublic | None = Field(
+        default=None, description="Monte-Carlo localisation's estimate, when it runs."
+    )
+    disambiguation: DisambiguationPublic | None = Field(
+        default=None, description="Set while the belief holds separated hypotheses."
+    )
 
 
 AnyFrameResult = Annotated[FrameResult | NavigationFrameResult, Field(discriminator="mode")]
@@ -280,3 +464,74 @@ class RobotState(_Model):
     mode: Literal["idle", "teaching", "navigating"]
     teaching: TeachingState | None = None
     navigation: NavigationState | None = None
+
+
+# --- recordings ----------------------------------------------------------------------------
+
+RecordingName = Annotated[
+    str,
+    StringConstraints(
+        pattern=r"^[a-z0-9][a-z0-9_-]{0,63}\.tour[0-9]{1,16}\.[0-9]{8}-[0-9]{6}(-[0-9]{1,3})?"
+        r"\.(teach|task[0-9]{1,16})\.mcap$"
+    ),
+    Field(
+        description="File name of a recording: ROBOT.tourID.YYYYMMDD-HHMMSS.(teach|taskID).mcap "
+        "(GET /robots/{robot}/recordings lists them)."
+    ),
+]
+
+
+class RecordingPublic(_Model):
+    """One recorded teaching tour or navigation task (an MCAP file: docs/recording.md)."""
+
+    name: str = Field(description="File name; GET /robots/{robot}/recordings/{name} reads it.")
+    kind: Literal["teach", "navigate"]
+    tour: int
+    task: int | None = Field(description="The navigation task's id (none for teaching).")
+    started_at: float = Field(description="Unix time, s, from the file name (whole seconds).")
+    size_bytes: int
+    recording: bool = Field(description="True while the task is still being written.")
+
+
+# --- households, logins, audit ------------------------------------------------------------
+
+
+class HouseholdCreate(_Model):
+    name: HouseholdName
+    password: Password | None = Field(
+        default=None, description="The household's login; without one it cannot log in yet."
+    )
+
+
+class PasswordSet(_Model):
+    password: Password
+
+
+class HouseholdPublic(_Model):
+    id: int
+    name: str
+    created_at: float
+    has_login: bool = Field(description="Whether a password is set.")
+    robots: int
+    tours: int
+
+
+class LoginRequest(_Model):
+    household: HouseholdName
+    password: str = Field(max_length=256)
+
+
+class LoginResult(_Model):
+    token: str = Field(description="Bearer token of this login. Shown once; stored hashed.")
+    household: str
+    expires_at: float = Field(description="Unix time, s, after which the token is refused.")
+
+
+class AuditEntry(_Model):
+    id: int
+    at: float = Field(description="Unix time, s.")
+    actor: str = Field(description="admin, robot:<name>, household:<name> or login:<name>.")
+    action: str = Field(description="Method and route, e.g. 'POST /robots/{robot}/goto'.")
+    target: str = Field(description="The path that was called.")
+    status: int
+    address: str | None

@@ -21,3 +21,33 @@ def hash_token(token: str) -> str:
 def same_token(given: str, expected: str) -> bool:
     """Constant-time comparison of two tokens."""
     return hmac.compare_digest(given.encode("utf-8"), expected.encode("utf-8"))
+
+
+def hash_password(password: str) -> str:
+    """An argon2id hash of a household's password (salted, memory-hard; argon2-cffi's
+    defaults, RFC 9106's low-memory profile: about 0.1 s and 64 MiB per hash)."""
+    from argon2 import PasswordHasher
+
+    return PasswordHasher().hash(password)
+
+
+_DUMMY_HASH: list[str] = []
+
+
+def verify_password(password: str, password_hash: str | None) -> bool:
+    """Whether ``password`` matches ``password_hash``. With ``None`` (no such household, or no
+    password set) a dummy hash is checked anyway, so the answer takes as long either way and
+    its timing does not tell which household names exist."""
+    from argon2 import PasswordHasher
+    from argon2.exceptions import InvalidHashError, VerificationError
+
+    known = password_hash is not None
+    if password_hash is None:
+        if not _DUMMY_HASH:
+            _DUMMY_HASH.append(hash_password(new_token()))
+        password_hash = _DUMMY_HASH[0]
+    try:
+        PasswordHasher().verify(password_hash, password)
+    except (VerificationError, InvalidHashError):
+        return False
+    return known

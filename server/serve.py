@@ -1,4 +1,14 @@
-"""``teachrepeat serve``: run the API (and, when installed, the dashboard)."""
+"""``teachrepeat serve``: run the API (and, when installed, the dashboard).
+
+The dashboard is served three ways (docs/security.md, Dashboard login):
+
+* on a loopback host, by default: the gate without a login, every household's robots, only
+  to pages asked for as localhost/127.0.0.1 from the same origin;
+* off loopback (or with ``dashboard_login`` on): the login gate (:mod:`web.gate`) on the
+  dashboard port, each household seeing only its own; ``serve`` refuses to start while no
+  household has a password, saying how to set one;
+* with a TLS certificate, always through the gate's uvicorn server, so HTTPS covers it too.
+"""
 
 from __future__ import annotations
 
@@ -9,11 +19,17 @@ import os
 import socket
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pydantic import SecretStr
 
 from server.config import Settings
 from server.security import new_token
+from server.tls import SslOptions, ssl_options
+
+if TYPE_CHECKING:
+    from server.services.container import Services
+    from web.gate import Gate
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,6 +40,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--dashboard-port",
         type=int,
         help="dashboard port (default 8080; 0 = any free port; -1 = no dashboard)",
+    )
+    parser.add_argument(
+        "--tls-cert",
+        type=Path,
+        metavar="FILE",
+        help="serve the API over HTTPS with this PEM certificate (`teachrepeat cert` makes one)",
+    )
+    parser.add_argument("--tls-key", type=Path, metavar="FILE", help="the certificate's PEM key")
+    parser.add_argument(
+        "--record",
+        type=Path,
+        metavar="DIR",
+        help="record every teaching tour and navigation task to an MCAP file in DIR (one "
+        "folder per household; docs/recording.md). Without it a task is recorded when it asks "
+        "(record: true), into `recordings` beside the database",
+    )
+    parser.add_argument(
+        "--dashboard-login",
+        choices=("on", "off"),
+        help="ask for a household login on the dashboard (default: on unless the host is "
+        "loopback; off is refused off loopback)",
     )
 
 
@@ -49,11 +86,19 @@ def token_file(settings: Settings) -> Path:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     overrides = {
-        k: getattr(args, k) for k in ("db", "host", "port") if getattr(args, k, None) is not None
+        k: getattr(args, k)
+        for k in ("db", "host", "port", "tls_cert", "tls_key")
+        if getattr(args, k, None) is not None
     }
     dashboard_port = getattr(args, "dashboard_port", None)
     if dashboard_port is not None:
         overrides["dashboard_port"] = None if dashboard_port < 0 else dashboard_port
+    record = getattr(args, "record", None)
+    if record is not None:
+        overrides.update(record=True, record_dir=record)
+    dashboard_login = getattr(args, "dashboard_login", None)
+    if dashboard_login is not None:
+        overrides["dashboard_login"] = dashboard_login == "on"
     settings = Settings(**overrides)
     return settings.model_copy(update={"admin_token": admin_token_for(settings)})
 
@@ -90,6 +135,38 @@ def limit_malloc_arenas(arenas: int = 2) -> bool:
         return False
 
 
+def no_login_message(settings: Settings) -> str:
+    """What ``serve`` says when the dashboard needs a login that nobody has."""
+    return (
+        f"teachrepeat serve: the dashboard on {settings.host} asks for a household login, and "
+        "no household has a password yet. Set one first: `teachrepeat household password "
+        "default` (the household that owns everything made before households existed), or "
+        "`teachrepeat household create NAME` (both read the password from stdin), with the "
+        "same --db; then start serve again. Or serve without the dashboard (--dashboard-port "
+        "-1), or on 127.0.0.1"
+    )
+
+
+def start_dashboard(settings: Settings, services: Services, tls: SslOptions) -> Gate | None:
+    """Start the dashboard as the settings ask and print its address; the running gate (its
+    ``port``, ``stop()``), or None when the dashboard is off. Always the gate
+    (:mod:`web.gate`): with a login off loopback (or when asked), else without one but
+    answering only to loopback names and
+    same-origin pages (viser itself checks neither: any web site the user visits could open
+    its WebSocket). Raises OSError when the gate's port is taken."""
+    if settings.dashboard_port is None:
+        return None
+    login = settings.dashboard_needs_login()
+    from web.gate import Gate
+
+    gate = Gate(services, login=login, secure=bool(tls), limits=settings.rate_limits())
+    used = gate.start(settings.host, settings.dashboard_port, ssl=tls)
+    print(f"dashboard        {'https' if tls else 'http'}://{settings.host}:{used}", flush=True)
+    if login:
+        print("dashboard login  a household's name and password", flush=True)
+    return gate
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -98,26 +175,42 @@ def run(args: argparse.Namespace) -> int:
     limit_malloc_arenas()
     try:
         settings = settings_from(args)
+        tls = ssl_options(settings)
+        login = settings.dashboard_port is not None and settings.dashboard_needs_login()
         app = create_app(settings)
-    except ValueError as exc:  # a setting that does not parse or does not exist
+    except ValueError as exc:  # a setting that does not parse or does not exist, a bad TLS file
         print(f"teachrepeat serve: {exc}", file=sys.stderr, flush=True)
+        return 2
+    services: Services = app.state.services
+    if login and not services.repo.any_login():
+        services.close()
+        print(no_login_message(settings), file=sys.stderr, flush=True)
         return 2
     sock = bind_port(settings.host, settings.port)
     port = sock.getsockname()[1]
-    base = f"http://{settings.host}:{port}"
+    base = f"{'https' if tls else 'http'}://{settings.host}:{port}"
     print(f"teachrepeat API  {base}", flush=True)
     print(f"API docs         {base}/docs", flush=True)
     print(f"database         {settings.db}", flush=True)
+    if settings.record:
+        print(f"recording to     {settings.recordings_dir()}", flush=True)
     if token_file(settings).exists():
         print(f"admin token in   {token_file(settings)}", flush=True)
-    dashboard = None
-    if settings.dashboard_port is not None:
-        from web.dashboard import Dashboard
-
-        dashboard = Dashboard(app.state.services, host=settings.host, port=settings.dashboard_port)
-        used = dashboard.start()
-        print(f"dashboard        http://{settings.host}:{used}", flush=True)
-    config = uvicorn.Config(app, log_level="warning", access_log=False)
+    try:
+        dashboard = start_dashboard(settings, services, tls)
+        if dashboard is not None:  # GET / tells where it is: the port it really got
+            app.state.settings = settings.model_copy(update={"dashboard_port": dashboard.port})
+    except OSError as exc:  # the gate's port (viser moves to the next free one by itself)
+        sock.close()
+        services.close()
+        print(
+            f"teachrepeat serve: cannot listen on dashboard port {settings.dashboard_port} "
+            f"({exc.strerror}); choose another with --dashboard-port (0 = any free port)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 2
+    config = uvicorn.Config(app, log_level="warning", access_log=False, **tls)
     # what exists now (modules, the app, ~90 000 objects) lives as long as the process: keep
     # it out of the collector, whose full passes over it stalled a step by ~35 ms now and then
     gc.collect()

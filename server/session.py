@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation import Command, Frame, Navigator, Task, TaskState, TourRuntime
 from server.navigation.observation import Outcome
@@ -38,6 +39,18 @@ class StepRecord:
     command: Command
     step_ms: float
     outcome: Outcome | None = None
+    mcl: MclEstimate | None = None  # the metric pose estimate, when Monte-Carlo localisation runs
+
+    def best_match(self) -> tuple[int, int | None, float | None]:
+        """The most likely upper state, its best-matching stored image (canonical index, or
+        ``None`` when the state has none) and that image's similarity to the frame."""
+        state = self.summary.state
+        best_state = int(np.argmax(state)) if len(state) else 0
+        images, sims = self.similarity.best_image, self.similarity.image
+        if best_state >= len(images) or not 0 <= int(images[best_state]) < len(sims):
+            return best_state, None, None
+        k = int(images[best_state])
+        return best_state, k, float(sims[k])
 
 
 @dataclass(frozen=True)
@@ -129,6 +142,7 @@ class RobotSession:
             command=step.command,
             step_ms=(time.perf_counter() - started) * 1000.0,
             outcome=step.outcome,
+            mcl=step.mcl,
         )
         self.history.append(record)
         if step.outcome is not None:

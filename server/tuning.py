@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["tuned"]
+__all__ = ["add_set_argument", "changed", "setting_argument", "tuned"]
 
 
 def tuned(params: T, overrides: Mapping[str, Any]) -> T:
@@ -79,3 +79,48 @@ def _coerce(current: Any, value: Any, name: str) -> Any:
     if current is None or isinstance(current, tuple):
         kind = "a list of numbers" + (" or null" if current is None else "")
     raise ValueError(f"{name} takes {kind}, not {value!r}")
+
+
+def changed(params: Any, defaults: Any) -> dict[str, Any]:
+    """The settings of the frozen dataclass ``params`` that differ from ``defaults``, by
+    dotted name, as :func:`tuned` takes them: ``tuned(defaults, changed(p, defaults)) == p``.
+    Tuples come out as lists (JSON)."""
+    out: dict[str, Any] = {}
+    for f in fields(params):
+        value, default = getattr(params, f.name), getattr(defaults, f.name)
+        if is_dataclass(value) and not isinstance(value, type):
+            out.update({f"{f.name}.{k}": v for k, v in changed(value, default).items()})
+        elif value != default:
+            out[f.name] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+def setting_argument(text: str) -> tuple[str, Any]:
+    """``NAME=VALUE`` as given on a command line (``--set motion.unstick_s=6``): the name, and
+    the value read as JSON (a bare word is a string). For argparse's ``type=``: raises
+    ``argparse.ArgumentTypeError`` without ``=``."""
+    import argparse
+    import json
+
+    name, eq, raw = text.partition("=")
+    if not eq or not name.strip():
+        raise argparse.ArgumentTypeError(f"--set takes NAME=VALUE, not {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw  # a bare word is a string
+    return name.strip(), value
+
+
+def add_set_argument(parser: Any, help_text: str) -> None:
+    """``--set NAME=VALUE`` (repeatable) on an argparse ``parser``, into ``args.settings`` as
+    ``(name, value)`` pairs (:func:`setting_argument`)."""
+    parser.add_argument(
+        "--set",
+        dest="settings",
+        metavar="NAME=VALUE",
+        action="append",
+        type=setting_argument,
+        default=[],
+        help=help_text,
+    )

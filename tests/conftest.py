@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import sqlite3
+import subprocess
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,9 +52,12 @@ def make_jpeg(seed: int = 0, width: int = 64, height: int = 48) -> bytes:
 
 
 def db_dump(path: Path) -> str:
-    """Every row of every table, as SQL text: equal dumps mean an unchanged database."""
+    """Every row of every table but the audit log, as SQL text: equal dumps mean unchanged
+    data. (A refused call is still audited: the log is meant to grow.)"""
     with sqlite3.connect(path) as conn:
-        return "\n".join(conn.iterdump())
+        return "\n".join(
+            line for line in conn.iterdump() if not line.startswith('INSERT INTO "audit"')
+        )
 
 
 @dataclass
@@ -80,3 +85,27 @@ def api(tmp_path: Path) -> Iterator[Api]:
     settings = Settings(db=db_path, admin_token=SecretStr(ADMIN_TOKEN), dashboard_port=None)
     with TestClient(create_app(settings)) as client:
         yield Api(client, db_path, {"Authorization": f"Bearer {ADMIN_TOKEN}"})
+
+
+def serve_exits_2(
+    db: Path, *args: str, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """Run ``teachrepeat serve --port 0 --db db *args`` with no ``TEACHREPEAT_*`` setting but
+    the admin token (and ``env``); assert it exits 2 with a message, not a traceback, and
+    without printing the admin token; the finished process (its stdout and stderr)."""
+    from server.process import ADMIN
+
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("TEACHREPEAT_")}
+    environment.update({"TEACHREPEAT_ADMIN_TOKEN": ADMIN, **(env or {})})
+    done = subprocess.run(
+        [sys.executable, "-m", "server.cli", "serve", "--port", "0", "--db", str(db), *args],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd=PROJECT_ROOT,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
+    assert ADMIN not in done.stderr + done.stdout
+    return done

@@ -1,4 +1,4 @@
-"""``teachrepeat bench dashboard``: does a watching browser slow the robots down?
+"""``teachrepeat bench dashboard``: does a watching browser (or recording) slow the robots down?
 
 One process runs the real API (uvicorn, in a thread) and the dashboard on the same services, as
 ``teachrepeat serve`` does. A robot is taught the 111 frames of ``corridor/ref`` through the robot
@@ -7,6 +7,12 @@ server's step latency (``StepRecord.step_ms``: features, similarities, belief, p
 client's round trip are recorded. Blocks without and with a headless Chromium showing the
 dashboard alternate (A B A B ...), so drift in machine load hits both equally. Target: the
 medians differ by less than 5%.
+
+``--compare recording`` alternates blocks whose navigation task is recorded (an MCAP file per
+task, :mod:`server.recording`) with blocks whose task is not, no browser; besides the step and
+the round trip it measures what the recorder does in the robot's request thread (its
+``stepped``), the process's CPU per frame (the recorder's writer thread included) and the bytes
+written per frame. Target: the round trip's median grows by at most 10%.
 
 The helpers (:func:`start_live_server`, :func:`teach_corridor`, :class:`FrameStreamer`) are
 shared with the end-to-end test of the dashboard.
@@ -24,6 +30,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 
@@ -77,6 +85,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="comma-separated CPUs for Chromium, e.g. 1: with --server-cpus it models a browser "
         "on the user's own device, so only the server's cost of feeding a watcher is measured",
+    )
+    parser.add_argument(
+        "--compare",
+        choices=("browser", "recording"),
+        default="browser",
+        help="what alternates between blocks: a browser watching the dashboard (default), or "
+        "recording the task to an MCAP file",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
 
@@ -176,6 +191,7 @@ class FrameStreamer:
     frames: list[bytes]
     fps: float = 10.0
     goals: tuple[str, ...] = field(default_factory=lambda: _ends(corridor_marks()))
+    record: bool | None = None  # the gotos ask for recording (None: the server decides)
     round_trips_ms: list[float] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
     sent: int = 0
@@ -211,7 +227,7 @@ class FrameStreamer:
                 and (task is None or task.state != "underway")
             ):
                 goal = self.goals[self.sent % len(self.goals)]
-                self.client.goto(self.robot, goal)
+                self.client.goto(self.robot, goal, record=self.record)
             next_at += period
             delay = next_at - time.perf_counter()
             if delay > 0:
@@ -331,18 +347,23 @@ def run(args: argparse.Namespace) -> int:
     server_cpus = _cpus(args.server_cpus)
     if server_cpus:
         os.sched_setaffinity(0, server_cpus)  # threads started from now on inherit it
+    recording = args.compare == "recording"
     with tempfile.TemporaryDirectory() as tmp:
-        live = start_live_server(Path(tmp) / "bench.sqlite")
+        live = start_live_server(Path(tmp) / "bench.sqlite", dashboard=not recording)
         try:
-            assert live.dashboard is not None
-            print(f"API {live.url}, dashboard {live.dashboard.url}")
+            print(
+                f"API {live.url}" + (f", dashboard {live.dashboard.url}" if live.dashboard else "")
+            )
             token = register(live.url, "bench")
             with TeachRepeatClient(live.url, token) as client:
                 teach_corridor(client, data)
                 client.goto("bench", _ends(corridor_marks())[0])
                 streamer = FrameStreamer(client, "bench", query_frames(data), fps=args.fps)
                 streamer.send(30)  # warm-up: runtime built, caches hot
-                result = _alternate(live, streamer, args)
+                if recording:
+                    result = _alternate_recording(live, client, streamer, args)
+                else:
+                    result = _alternate(live, streamer, args)
         finally:
             live.stop()
     write_json(args.json, result)
@@ -409,6 +430,91 @@ def _alternate(
         "ratio_median": ratio,
         "ratio_p95": b["p95"] / a["p95"],
         "within_5_percent": abs(ratio - 1.0) < 0.05,
+        "cpus": os.cpu_count(),
+        "errors": streamer.errors[:10],
+    }
+
+
+def _alternate_recording(
+    live: LiveServer, client: TeachRepeatClient, streamer: FrameStreamer, args: argparse.Namespace
+) -> dict[str, Any]:
+    """Blocks off / on: each starts a task to the corridor's far end, recorded or not, and
+    streams the same frames (the first ``--frames`` query frames)."""
+    recorder = live.services.recordings
+    hook_ms: list[float] = []
+    stepped = recorder.stepped
+
+    def timed(*a: Any, **kw: Any) -> None:  # the recorder's work in the request thread
+        started = time.perf_counter()
+        stepped(*a, **kw)
+        hook_ms.append((time.perf_counter() - started) * 1000.0)
+
+    recorder.stepped = timed  # type: ignore[method-assign]
+    modes = ("off", "on")
+    steps: dict[str, list[float]] = {m: [] for m in modes}
+    trips: dict[str, list[float]] = {m: [] for m in modes}
+    cpu: dict[str, list[float]] = {m: [] for m in modes}
+    for block in range(args.blocks):
+        mode = modes[block % 2]
+        recorder.wait_idle()  # the last block's file finished before this block is timed
+        streamer.record = mode == "on"
+        client.goto(streamer.robot, _ends(corridor_marks())[0], record=streamer.record)
+        streamer.sent = 0  # every block streams the same frames from a fresh task
+        since = streamer._clock
+        cpu0 = time.process_time()
+        sent = streamer.send(args.frames)
+        cpu[mode].append((time.process_time() - cpu0) * 1000.0 / max(1, len(sent)))
+        trips[mode] += sent
+        block_steps = step_times(live.services, streamer.robot, since)
+        steps[mode] += block_steps
+        s = stats(sent)
+        print(
+            f"block {block + 1}/{args.blocks} recording {mode:>3}: round trip median "
+            f"{s['p50']:.1f} ms, p95 {s['p95']:.1f} ms"
+        )
+    client.stop(streamer.robot)
+    recorder.wait_idle()
+    writer_ms = recorder.writer_cpu_s * 1000.0 / max(1, len(trips["on"]))
+    files = recorder.store.files()
+    written = sum(f.size_bytes for f in files)
+    frames_on = len(trips["on"])
+    a, b = stats(trips["off"]), stats(trips["on"])
+    sa, sb = stats(steps["off"]), stats(steps["on"])
+    hook = stats(hook_ms)
+    cpu_off, cpu_on = float(np.median(cpu["off"])), float(np.median(cpu["on"]))
+    ratio = b["p50"] / a["p50"]
+    print(
+        f"round trip, recording off: median {a['p50']:.2f} ms, p95 {a['p95']:.2f} ms (n={a['n']})\n"
+        f"round trip, recording on:  median {b['p50']:.2f} ms, p95 {b['p95']:.2f} ms (n={b['n']})\n"
+        f"ratio of medians {ratio:.3f} ({(ratio - 1) * 100:+.1f}%; target at most +10%)\n"
+        f"server step (StepRecord.step_ms): median {sa['p50']:.2f} ms off, {sb['p50']:.2f} ms on\n"
+        f"recorder in the request thread: median {hook['p50']:.3f} ms, p95 {hook['p95']:.3f} ms "
+        f"per frame ({hook['p50'] / sa['p50'] * 100:.1f}% of the step's median)\n"
+        f"recorder's writer thread: {writer_ms:.3f} ms of CPU per recorded frame\n"
+        f"process CPU per frame (clients, server, writer): median of blocks {cpu_off:.2f} ms off, "
+        f"{cpu_on:.2f} ms on (x{cpu_on / cpu_off:.3f})\n"
+        f"written: {len(files)} files, {written / 1e6:.1f} MB, "
+        f"{written / max(1, frames_on) / 1e3:.1f} kB per recorded frame"
+    )
+    return {
+        "what": "client round trip and server step of a navigating robot streaming the corridor "
+        "query frames, blocks whose task is recorded (MCAP) alternating with blocks whose is not",
+        "fps": args.fps,
+        "blocks": args.blocks,
+        "frames_per_block": args.frames,
+        "round_trip_ms_off": a,
+        "round_trip_ms_on": b,
+        "step_ms_off": sa,
+        "step_ms_on": sb,
+        "recorder_request_thread_ms": hook,
+        "recorder_writer_cpu_ms_per_frame": writer_ms,
+        "cpu_ms_per_frame_off": cpu_off,
+        "cpu_ms_per_frame_on": cpu_on,
+        "ratio_median": ratio,
+        "ratio_p95": b["p95"] / a["p95"],
+        "within_10_percent": ratio <= 1.10,
+        "bytes_per_recorded_frame": written / max(1, frames_on),
+        "files": len(files),
         "cpus": os.cpu_count(),
         "errors": streamer.errors[:10],
     }

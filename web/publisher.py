@@ -26,6 +26,7 @@ import numpy.typing as npt
 
 if TYPE_CHECKING:
     from server import schemas
+    from server.belief.mcl import MclEstimate
     from server.domain import TourGraph
     from server.services.container import Services
     from server.session import RobotSession, Segment, StepRecord
@@ -73,6 +74,9 @@ class StepView:
     step_ms: float
     appearance: tuple[float, ...] = (1.0,)  # belief over the engine's appearance models
     model_weights: tuple[tuple[float, ...], ...] = ()  # each model's signature block weights
+    hypotheses: tuple[tuple[int, float], ...] = ()  # separated hypotheses (disambiguation)
+    separating: bool = False  # the action was chosen to tell them apart
+    mcl: MclEstimate | None = None  # Monte-Carlo localisation's pose (docs/ambiguity.md)
 
 
 @dataclass(frozen=True)
@@ -112,10 +116,12 @@ class Snapshot:
     history_top: FloatArray = field(default_factory=lambda: np.zeros(0))  # max b(s) per step
     history_entropy: FloatArray = field(default_factory=lambda: np.zeros(0))  # nats
     timeline: tuple[Segment, ...] = ()  # the current task's behaviours over time
+    activity: tuple[tuple[str, str], ...] = ()  # (robot, "navigating to kitchen") of busy robots
 
 
 Selection = Callable[[], tuple[str | None, int | None]]
-"""Returns the selected robot and the tour to show when that robot is not bound to one."""
+"""Returns the selected robot and the tour to show when that robot is not bound to one. No
+robot selected: the first robot that is navigating or teaching, else the first robot."""
 
 
 class Publisher:
@@ -124,6 +130,7 @@ class Publisher:
     ``sink(snapshot)`` runs in the publisher thread after each snapshot (the dashboard's
     renderer); an exception in it is logged and the thread keeps going. :meth:`poke` asks for
     a snapshot right away (after a button press), still never faster than ``hz``.
+    ``household``: list only that household's robots and tours (``None``: every household's).
     """
 
     def __init__(
@@ -131,6 +138,7 @@ class Publisher:
         services: Services,
         *,
         selection: Selection,
+        household: int | None = None,
         sink: Callable[[Snapshot], None] | None = None,
         hz: float = 5.0,
         image_cache: int = 256,
@@ -139,6 +147,7 @@ class Publisher:
             raise ValueError(f"hz must be positive, got {hz}")
         self.services = services
         self.selection = selection
+        self.household = household
         self.sink = sink
         self.period_s = 1.0 / min(hz, 5.0)  # never more often than 5 Hz
         self.latest: Snapshot | None = None
@@ -153,6 +162,7 @@ class Publisher:
             (),
             (),
         )
+        self._activity: tuple[tuple[str, str], ...] = ()
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._published = threading.Condition()
@@ -231,7 +241,7 @@ class Publisher:
         if robot is not None and robot not in robots:
             robot = None
         if robot is None and robots:
-            robot = robots[0]
+            robot = self._activity[0][0] if self._activity else robots[0]
         session = None if robot is None else self.services.navigation.sessions().get(robot)
         teaching_row = None if robot is None else self.services.repo.teaching(robot)
 
@@ -273,6 +283,7 @@ class Publisher:
             graph=graph,
             graph_key=graph_key,
             teaching=teaching,
+            activity=self._activity,
         )
         if session is None or teaching_row is not None:
             return snap
@@ -325,6 +336,7 @@ class Publisher:
             history_top=hist_top,
             history_entropy=hist_h,
             timeline=_copy_timeline(session),
+            activity=snap.activity,
         )
 
     def _tour_of(self, session: RobotSession) -> int | None:
@@ -344,10 +356,26 @@ class Publisher:
         now = time.monotonic()
         if now - at >= LISTS_EVERY_S:
             repo = self.services.repo
-            robots = tuple(r.name for r in repo.robots())
-            tours = tuple((t.id, t.name, nl, ne, ni) for t, nl, ne, ni in repo.tours())
+            robots = tuple(r.name for r in repo.robots(self.household))
+            tours = tuple(
+                (t.id, t.name, nl, ne, ni) for t, nl, ne, ni in repo.tours(self.household)
+            )
             self._lists = (now, robots, tours)
+            self._activity = self._busy(robots)
         return robots, tours
+
+    def _busy(self, robots: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+        """What the robots that are navigating or teaching do (read with the lists)."""
+        sessions = self.services.navigation.sessions()
+        out = []
+        for robot in robots:
+            session = sessions.get(robot)
+            task = None if session is None else session.task
+            if task is not None and task.underway:
+                out.append((robot, f"navigating to {task.goal_name}"))
+            elif self.services.repo.teaching(robot) is not None:
+                out.append((robot, "teaching"))
+        return tuple(out)
 
     def refresh_lists(self) -> None:
         """Forget the cached robot and tour lists (after a change made from the dashboard)."""
@@ -359,7 +387,8 @@ class Publisher:
         counts = next((t[2:] for t in tours if t[0] == tour_id), None)
         if counts is None:
             return None
-        key: tuple[object, ...] = (tour_id, *counts)
+        # the distinctiveness arrives after teaching, in the background: its count is the key too
+        key: tuple[object, ...] = (tour_id, *counts, self.services.repo.entropy_images(tour_id))
         graph = self._graphs.get(key)
         if graph is None:
             graph = self.services.repo.graph(tour_id)
@@ -402,23 +431,15 @@ def _copy_history(session: RobotSession) -> list[StepRecord]:
 def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
     summary = record.summary
     state = np.array(summary.state, dtype=np.float64)
-    best_state = int(np.argmax(state)) if len(state) else 0
-    best_image: int | None = None
-    best_similarity: float | None = None
-    sim = record.similarity
-    image_sims = getattr(sim, "image", None)
+    best_state, best_image, best_similarity = record.best_match()
+    if best_image is not None and best_image >= graph.n_images:
+        best_image = best_similarity = None
+    image_sims = record.similarity.image
     image_similarity = (
         np.zeros(graph.n_images)
-        if image_sims is None or len(image_sims) != graph.n_images
+        if len(image_sims) != graph.n_images
         else np.array(image_sims, dtype=np.float64)
     )
-    best_images = getattr(sim, "best_image", None)
-    if best_images is not None and best_state < len(best_images):
-        k = int(best_images[best_state])
-        if 0 <= k < graph.n_images:
-            best_image = k
-            if k < len(image_similarity):
-                best_similarity = float(image_similarity[k])
     decision = record.decision
     votes = {} if decision is None else {str(k): float(v) for k, v in decision.votes.items()}
     command = record.command
@@ -447,4 +468,7 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         w=float(command.w),
         step_ms=float(record.step_ms),
         appearance=tuple(float(x) for x in summary.appearance),
+        hypotheses=() if decision is None else decision.hypotheses,
+        separating=False if decision is None else decision.separating,
+        mcl=record.mcl,
     )

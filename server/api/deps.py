@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated
 
 from fastapi import Depends, Path, Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -13,6 +12,7 @@ from server.errors import Forbidden, NotFound, TooLarge, Unauthorized, Unsupport
 from server.schemas import RobotName
 from server.security import hash_token, same_token
 from server.services.container import Services
+from server.services.households import ADMIN, Principal
 
 
 async def get_services(request: Request) -> Services:
@@ -22,35 +22,37 @@ async def get_services(request: Request) -> Services:
 
 ServicesDep = Annotated[Services, Depends(get_services)]
 
-_bearer = HTTPBearer(auto_error=False, description="Robot token or the admin token.")
-
-
-@dataclass(frozen=True)
-class Principal:
-    """Who is calling: the admin, or one registered robot."""
-
-    kind: Literal["admin", "robot"]
-    robot: str | None = None
+_bearer = HTTPBearer(
+    auto_error=False,
+    description="A robot's token, a household login (POST /auth/login) or the admin token.",
+)
 
 
 async def get_principal(
+    request: Request,
     services: ServicesDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Security(_bearer)],
 ) -> Principal:
     """Async, so a frame does not hop through the thread pool to be authenticated: a known
-    token is answered from memory, an unknown one is looked up in a worker thread."""
+    token is answered from memory, an unknown one is looked up in a worker thread. The caller
+    is kept on ``request.state.principal`` for the audit log."""
     if credentials is None or credentials.scheme.lower() != "bearer":
         raise Unauthorized("missing bearer token: send 'Authorization: Bearer <token>'")
     token = credentials.credentials
     if same_token(token, services.admin_token):
-        return Principal("admin")
-    token_hash = hash_token(token)
-    robot = services.robots.cached_robot(token_hash)
-    if robot is None:
-        robot = await run_in_threadpool(services.robots.robot_for_token, token_hash)
-    if robot is None:
-        raise Unauthorized("the bearer token is not valid; use the token given at registration")
-    return Principal("robot", robot)
+        principal: Principal | None = ADMIN
+    else:
+        token_hash = hash_token(token)
+        principal = services.identities.cached(token_hash)
+        if principal is None:
+            principal = await run_in_threadpool(services.identities.lookup, token_hash)
+    if principal is None:
+        raise Unauthorized(
+            "the bearer token is not valid (unknown, revoked or expired); use a robot's current "
+            "token or log in again with POST /auth/login"
+        )
+    request.state.principal = principal
+    return principal
 
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]
@@ -58,11 +60,34 @@ PrincipalDep = Annotated[Principal, Depends(get_principal)]
 
 async def require_admin(principal: PrincipalDep) -> Principal:
     if principal.kind != "admin":
-        raise Forbidden("this needs the admin token; a robot token cannot do it")
+        raise Forbidden("this needs the admin token; a robot token or household login cannot")
     return principal
 
 
 AdminDep = Annotated[Principal, Depends(require_admin)]
+
+
+async def require_household(principal: PrincipalDep) -> int:
+    """The caller's household (a robot's or a login's). The admin token is for administration
+    (households, robots, audit) only: it reads no tour, image or robot's camera."""
+    if principal.household is None:
+        raise Forbidden(
+            "the admin token is for administration only; use a robot token or a household "
+            "login (POST /auth/login) to reach a household's tours, images and robots"
+        )
+    return principal.household
+
+
+HouseholdDep = Annotated[int, Depends(require_household)]
+
+
+async def require_login(principal: PrincipalDep) -> Principal:
+    if principal.kind != "household":
+        raise Forbidden("this needs a household login (POST /auth/login)")
+    return principal
+
+
+LoginDep = Annotated[Principal, Depends(require_login)]
 
 
 async def robot_access(
@@ -70,17 +95,45 @@ async def robot_access(
     principal: PrincipalDep,
     robot: Annotated[RobotName, Path(description="Name of the robot.")],
 ) -> str:
-    """The robot named in the path, when the caller may act for it (itself, or the admin)."""
-    if principal.kind == "robot" and principal.robot != robot:
+    """The robot named in the path, when the caller may act for it: the robot itself, or a
+    login of its household. A robot of another household is answered as one that does not
+    exist (404); another robot of the same household is refused (403)."""
+    if principal.kind == "robot" and principal.robot == robot:
+        return robot
+    if principal.kind == "admin":
+        raise Forbidden(
+            "the admin token is for administration only; the robot's own token or a login of "
+            "its household drives it"
+        )
+    owner = await run_in_threadpool(services.repo.robot_household, robot)
+    if owner is None or owner != principal.household:
+        raise NotFound(f"no robot named {robot!r}; GET /robots lists your household's robots")
+    if principal.kind == "robot":
         raise Forbidden(
             f"this token belongs to robot {principal.robot!r}; it cannot read or drive {robot!r}"
         )
-    if principal.kind == "admin" and not await run_in_threadpool(services.repo.robot_exists, robot):
-        raise NotFound(f"no robot named {robot!r}; register it with POST /robots")
     return robot
 
 
 RobotDep = Annotated[str, Depends(robot_access)]
+
+
+async def robot_manage(
+    services: ServicesDep,
+    principal: PrincipalDep,
+    robot: Annotated[RobotName, Path(description="Name of the robot.")],
+) -> str:
+    """The robot named in the path, when the caller may manage its token: the admin, or a
+    login of its household (a robot cannot rotate or revoke tokens)."""
+    if principal.kind == "robot":
+        raise Forbidden("a robot token cannot manage tokens; use a household login")
+    owner = await run_in_threadpool(services.repo.robot_household, robot)
+    if owner is None or (principal.kind == "household" and owner != principal.household):
+        raise NotFound(f"no robot named {robot!r}; GET /robots lists the robots")
+    return robot
+
+
+RobotManageDep = Annotated[str, Depends(robot_manage)]
 
 JPEG_TYPES = {"image/jpeg", "image/jpg", "application/octet-stream"}
 

@@ -15,7 +15,16 @@ import numpy as np
 CORRIDOR_MARKS_FILE = Path(__file__).with_name("corridor_marks.csv")
 #: The ``--descriptor`` options of the benchmarks: ``server.vision.features.DESCRIPTOR_KINDS``,
 #: written out so that building the CLI parser does not import OpenCV (a test keeps them equal).
-DESCRIPTOR_CHOICES: tuple[str, ...] = ("grad36", "orb", "orb_fast", "sift")
+DESCRIPTOR_CHOICES: tuple[str, ...] = (
+    "grad36",
+    "orb",
+    "orb_fast",
+    "sift",
+    "akaze",
+    "akaze_upright",
+    "brisk",
+    "teblid",
+)
 
 
 def corridor_marks() -> dict[int, str]:

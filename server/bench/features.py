@@ -2,8 +2,9 @@
 
 Every option of ``FeatureParams.descriptor`` (``server.vision.features.DESCRIPTOR_KINDS``:
 grad36 at Harris corners, upright ORB at Harris corners, OpenCV's ORB with its FAST keypoints,
-OpenCV's SIFT) with the engine's settings otherwise unchanged (``EngineParams()``: its
-geometric setting, 100 keypoints), measured by the other benchmarks' own functions:
+OpenCV's SIFT, AKAZE as it comes and with its upright descriptor, BRISK, TEBLID at the Harris
+corners) with the engine's settings otherwise unchanged (``EngineParams()``: its geometric
+setting, 100 keypoints), measured by the other benchmarks' own functions:
 
 1. **extraction** of one 320x240 frame, p50 / p95 in ms: real frames of every data set resized
    to the working size beforehand, the full :func:`~server.vision.features.extract` and its
@@ -488,11 +489,11 @@ def format_tables(output: dict[str, Any]) -> str:
     def table(title: str, columns: Sequence[tuple[str, tuple[str, ...], str]]) -> None:
         lines.append("")
         lines.append(title)
-        head = f"{'option':10s}" + "".join(f"{name:>13s}" for name, _, _ in columns)
+        head = f"{'option':14s}" + "".join(f"{name:>13s}" for name, _, _ in columns)
         lines.append(head)
         for kind, r in res.items():
             cells = "".join(f"{_cell(r, *path, fmt=fmt):>13s}" for _, path, fmt in columns)
-            lines.append(f"{kind:10s}{cells}")
+            lines.append(f"{kind:14s}{cells}")
 
     ms = "{:.2f}"
     table(

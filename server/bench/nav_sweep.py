@@ -23,8 +23,10 @@ import contextlib
 import hashlib
 import json
 import multiprocessing as mp
+import os
 import queue
 import signal
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -36,6 +38,9 @@ BENCH_SERVER_SETTINGS: dict[str, Any] = {"frame_timeout_s": 1e9, "history": 1}
 """Navigation settings every benchmark server runs with, beside ``--set`` ones: no silence
 watchdog (wall clock; the simulated robot's clock stands still while it waits) and a history of
 one step per robot (the dashboard's; each trial has its own robot). Neither changes a command."""
+
+PREPARE_S = 1800.0
+"""How long a worker waits for its server to prepare a freshly taught tour (its first goto)."""
 
 _RECORDING_CODE = (
     "robot_client/guide.py",
@@ -70,6 +75,8 @@ class SweepConfig:
     max_steps: int
     env: tuple[tuple[str, str], ...]  # the benchmark server's environment
     trace: str | None  # folder for per-step traces
+    record: str | None = None  # folder for the recordings kept (--record)
+    record_all: bool = False  # keep every trial's recording, not only the failures'
 
 
 def recording_key(plan_sha256: str, seed: int) -> str:
@@ -108,9 +115,12 @@ class Worker:
 
         self.config = config
         self._stack = contextlib.ExitStack()
-        self.server = self._stack.enter_context(
-            scratch_server("bench.sqlite", extra_env=dict(config.env))
-        )
+        env = dict(config.env)
+        if config.record is not None:  # the server records each trial's task where asked
+            env["TEACHREPEAT_RECORD_DIR"] = self._stack.enter_context(
+                tempfile.TemporaryDirectory(prefix="teachrepeat-recordings-")
+            )
+        self.server = self._stack.enter_context(scratch_server("bench.sqlite", extra_env=env))
         self.plans = [load_plan(p) for p in config.plans]
         self._tours: dict[int, Any] = {}
         self._worlds: dict[tuple[int, str], Any] = {}
@@ -136,11 +146,23 @@ class Worker:
             recording = TourRecording.load(Path(self.config.recordings[plan]))
             name = f"teacher-{plan}"
             with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
-                self._tours[plan] = upload_tour(
+                graph = upload_tour(
                     client, name, recording.steps, tour=f"home {plan}: {self.plans[plan].name}"
                 )
+                # the server prepares the tour (features, weights, distinctiveness) for the
+                # first goto: here, with time to spare on a loaded machine, not in a trial's
+                client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
+                client.stop(name)
+                self._tours[plan] = graph
             self.teach_s += time.perf_counter() - t0
+            if self.config.record is not None:
+                keep_database(self.server.db, self._tour_database(plan))
         return self._tours[plan]
+
+    def _tour_database(self, plan: int) -> Path:
+        """Where the database a plan's recordings replay against is kept (--record)."""
+        assert self.config.record is not None
+        return Path(self.config.record) / f"{_slug(self.plans[plan].name)}.sqlite"
 
     def world(self, plan: int, condition: str) -> Any:
         key = (plan, condition)
@@ -176,7 +198,9 @@ class Worker:
                 tour=graph,
                 max_steps=self.config.max_steps,
                 on_step=None if self.config.trace is None else _tracer(robot, trace),
+                record=True if self.config.record is not None else None,
             )
+            evidence = self._keep_recording(client, name, spec, result.success)
         if self.config.trace is not None:
             folder = Path(self.config.trace) / _slug(plan.name) / spec.condition
             folder.mkdir(parents=True, exist_ok=True)
@@ -188,8 +212,51 @@ class Worker:
             "condition": spec.condition,
             "trial": spec.trial,
             **result.row(),
+            **evidence,
             "wall_s": time.perf_counter() - t0,
         }
+
+    def _keep_recording(
+        self, client: Any, robot: str, spec: TrialSpec, success: bool
+    ) -> dict[str, Any]:
+        """Download the trial's recording into the --record folder when it failed (every
+        one with --record-all); the row's ``recording`` (its path) and ``recording_db`` (the
+        database to replay it against)."""
+        config = self.config
+        if config.record is None or (success and not config.record_all):
+            return {}
+        deadline = time.monotonic() + 30
+        while True:  # the server finishes the file in its writer thread
+            listed = [r for r in client.recordings(robot) if r.kind == "navigate"]
+            if (listed and not listed[0].recording) or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        if not listed:
+            return {"recording": None, "recording_db": None}
+        folder = Path(config.record) / _slug(self.plans[spec.plan].name) / spec.condition
+        out = folder / f"trial_{spec.trial:03d}.mcap"
+        folder.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(client.recording(robot, listed[0].name))
+        return {"recording": str(out), "recording_db": str(self._tour_database(spec.plan))}
+
+
+def keep_database(db: Path, out: Path) -> None:
+    """A consistent copy of the server's database at ``out`` (SQLite's online backup, safe
+    while the server writes it), unless one is there: the tour a recording replays against
+    has the same fingerprint in every worker's database."""
+    import sqlite3
+
+    if out.exists():
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = out.with_name(f"{out.name}.{os.getpid()}.part")
+    source, target = sqlite3.connect(str(db)), sqlite3.connect(str(part))
+    try:
+        source.backup(target)
+    finally:
+        target.close()
+        source.close()
+    part.replace(out)
 
 
 def _slug(name: str) -> str:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from server.bench.common import stats, wilson_interval, write_json
+from server.bench.nav_ambiguity import localisation_summary, mcl_summary
 
 CONDITIONS = ("same", "lighting", "moved")
 DEFAULT_CACHE = Path("data") / "cache" / "tours"
@@ -38,6 +39,7 @@ DEFAULT_CACHE = Path("data") / "cache" / "tours"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from robot_client.sim.check_plan import add_plan_argument
+    from server.tuning import add_set_argument
 
     add_plan_argument(parser, several=True)
     parser.add_argument(
@@ -64,14 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as it does in the full run",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
-    parser.add_argument(
-        "--set",
-        dest="settings",
-        metavar="NAME=VALUE",
-        action="append",
-        type=_setting,
-        default=[],
-        help="run the servers with this navigation setting changed (repeatable; dotted names "
+    add_set_argument(
+        parser,
+        "run the servers with this navigation setting changed (repeatable; dotted names "
         "for nested ones, values as JSON): --set dock_second_axis=false --set "
         "motion.unstick_s=6. For ablations: the same trials with and without a change",
     )
@@ -83,6 +80,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "DIR/PLAN/CONDITION/trial_NNN.jsonl, to see why a trial failed",
     )
     parser.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="record every trial's task (MCAP, docs/recording.md) and keep the failed ones' "
+        "in DIR/PLAN/CONDITION/trial_NNN.mcap, with DIR/PLAN.sqlite to replay them against "
+        "(teachrepeat replay FILE --db DIR/PLAN.sqlite); the JSON names each file",
+    )
+    parser.add_argument(
+        "--record-all",
+        action="store_true",
+        help="with --record: keep every trial's recording, not only the failed ones'",
+    )
+    parser.add_argument(
         "--cache",
         type=Path,
         default=DEFAULT_CACHE,
@@ -90,17 +101,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {DEFAULT_CACHE})",
     )
     parser.add_argument("--no-cache", action="store_true", help="walk every tour afresh")
-
-
-def _setting(text: str) -> tuple[str, Any]:
-    name, eq, raw = text.partition("=")
-    if not eq or not name.strip():
-        raise argparse.ArgumentTypeError(f"--set takes NAME=VALUE, not {text!r}")
-    try:
-        value = json.loads(raw)
-    except json.JSONDecodeError:
-        value = raw  # a bare word is a string
-    return name.strip(), value
+    parser.add_argument(
+        "--mcl",
+        action="store_true",
+        help="run Monte-Carlo localisation beside the belief (--set mcl.enabled=true) and add "
+        "its position error against the simulator's truth to the JSON (mcl.median_error_m, "
+        "mcl.p90_error_m)",
+    )
 
 
 def _trial_list(text: str) -> frozenset[int]:
@@ -151,6 +158,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
         "failures_by_cause": {c: causes[c] for c in CAUSES_ORDER if causes[c]},
         "failures_by_behaviour": dict(sorted(behaviours.items())),
+        **localisation_summary(rows),
+        **({"mcl": mcl_summary(rows)} if any(r.get("mcl_error_m") for r in rows) else {}),
     }
 
 
@@ -163,6 +172,19 @@ def _line(label: str, s: dict[str, Any]) -> str:
         f"{s['median_path_ratio']:4.2f} / {s['p90_path_ratio']:4.2f}  "
         f"{s['median_time_s']:6.0f} s  {causes}"
     )
+
+
+def _localisation_line(label: str, s: dict[str, Any]) -> str:
+    first = s["median_first_correct_s"]
+    text = (
+        f"{label:<28} first right 'localised' p50 "
+        f"{'-' if first is None else f'{first:.1f} s'} (never {s['never_correct']}), wrong "
+        f"claims {s['wrong_claims']} in {s['trials_with_wrong_claims']} trials"
+    )
+    if "mcl" in s:
+        m = s["mcl"]
+        text += f", MCL error p50 {m['median_error_m']:.2f} m p90 {m['p90_error_m']:.2f} m"
+    return text
 
 
 def run(args: argparse.Namespace) -> int:
@@ -181,6 +203,11 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1 or args.workers < 1 or args.max_steps < 1:
         print(f"{prog}: --trials, --workers and --max-steps must be at least 1", file=sys.stderr)
         return 2
+    if args.record_all and args.record is None:
+        print(f"{prog}: --record-all needs --record DIR (where to keep them)", file=sys.stderr)
+        return 2
+    if args.mcl:
+        args.settings = [*args.settings, ("mcl.enabled", True)]
     try:
         env = _navigation_env(args.settings)
     except ValueError as exc:
@@ -208,6 +235,8 @@ def run(args: argparse.Namespace) -> int:
             max_steps=args.max_steps,
             env=tuple(env.items()),
             trace=None if args.trace is None else str(args.trace),
+            record=None if args.record is None else str(args.record.resolve()),
+            record_all=args.record_all,
         )
         bar = tqdm(total=len(specs), desc="trials", unit="trial")
 
@@ -246,10 +275,22 @@ def run(args: argparse.Namespace) -> int:
         print(_line(f"{r['plan']} / {r['condition']}", r))
     if len(results) > 1:
         print(_line("pooled", pooled))
+    labelled = [(f"{r['plan']} / {r['condition']}", r) for r in results]
+    for label, figures in labelled + ([("pooled", pooled)] if len(results) > 1 else []):
+        print(_localisation_line(label, figures))
     print(
         f"{len(rows)} trials in {wall_s / 60:.1f} min on {args.workers} worker(s) "
         f"(walking tours {walk_s:.0f} s, teaching servers {teach_s:.0f} s); time = robot seconds"
     )
+    kept = [r for r in rows if r.get("recording")]
+    if args.record is not None:
+        which = "trial" if args.record_all else "failed trial"
+        print(f"recordings of {len(kept)} {which}s kept in {args.record}")
+        if kept:
+            first = kept[0]
+            print(
+                f"replay one: teachrepeat replay {first['recording']} --db {first['recording_db']}"
+            )
     summary: dict[str, Any] = {
         "plans": [{"file": Path(p.source).name, "name": p.name, "sha256": p.sha256} for p in plans],
         "conditions": conditions,
@@ -260,6 +301,9 @@ def run(args: argparse.Namespace) -> int:
         "settings": dict(args.settings),
         "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),
         "workers": args.workers,
+        "record": None
+        if args.record is None
+        else {"folder": str(args.record), "all": args.record_all, "kept": len(kept)},
         "wall_s": wall_s,
         "walk_tours_s": walk_s,
         "teach_servers_s": teach_s,

@@ -13,11 +13,21 @@ the weights learned for the tour and with the fixed lighting-robust weights.
 With ``--offsets M [M ...]`` the camera is put beside the taught path instead: from taught path
 frames picked by ``--seed``, moved ``M`` metres sideways (left for half the views, right for the
 other half) and turned up to ``--turn-deg`` degrees off the taught heading. Per offset and
-condition it reports how many views retrieve the nearest taught image (within ``--radius`` and
-``--angle`` of the source frame's pose) *and* share at least ``--min-inliers`` RANSAC
-homography inliers with it (mutual nearest-neighbour corners,
-:meth:`~server.vision.index.TourIndex.geometric_inliers`). The engine is the server's default,
-with the weights the server would use for the tour.
+condition it reports how many views retrieve **the taught image nearest to where the camera
+now stands** *and* share at least ``--min-inliers`` RANSAC homography inliers with the image
+retrieved (mutual nearest-neighbour corners,
+:meth:`~server.vision.index.TourIndex.geometric_inliers`): ``matched_fraction``. "Nearest" is
+by :func:`pose_distance`, metres plus the heading difference at ``--radius`` metres per
+``--angle`` degrees, over every taught image (path frames of every traversal and spin images);
+the best image counts as that one when it lies within ``--radius`` and ``--angle`` of it, as
+neighbouring frames are near copies. Before 2026-11-26 the report judged the best image against
+the *source* frame the camera was moved from instead (within ``--radius`` and ``--angle`` of
+it); that figure is kept as ``source_matched_fraction``. Two figures say what limits it:
+``reachable_fraction``, the views for which some image within the tolerance of the nearest one
+has the inliers (what a perfect retrieval would match with these features), and
+``faces_wall_fraction``, the views facing a wall or furniture nearer than
+:data:`FACES_WALL_M`. The engine is the server's default (``--descriptor`` and ``--set``
+change it), with the weights the server would use for the tour.
 """
 
 from __future__ import annotations
@@ -33,15 +43,22 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from server.bench.common import write_json
+from server.bench.common import DESCRIPTOR_CHOICES, write_json
+from server.tuning import add_set_argument
 
 if TYPE_CHECKING:
     from robot_client.sim.floorplan import FloorPlan
     from robot_client.sim.world import Pose, SimWorld
-    from server.vision.features import DescriptorKind, FeatureParams
+    from server.navigation import NavigationParams
+    from server.vision.features import DescriptorKind, FeatureParams, ImageFeatures
     from server.vision.index import TourIndex
 
 CONDITIONS = ("same", "lighting", "moved")
+#: A view "faces a wall" when the nearest wall or piece of furniture across the middle of the
+#: view (rays within :data:`AHEAD_DEG` of its heading, median) is nearer than this, metres.
+FACES_WALL_M = 0.7
+#: Half-width of the middle of the view the distance ahead is measured over, degrees.
+AHEAD_DEG = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -81,6 +98,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=10,
         help="with --offsets: RANSAC inliers a match needs (default 10)",
+    )
+    parser.add_argument(
+        "--descriptor",
+        choices=DESCRIPTOR_CHOICES,
+        default=None,
+        help="with --offsets: the local features (FeatureParams.descriptor of the navigation "
+        "features and of the engine; default: the server's)",
+    )
+    add_set_argument(
+        parser,
+        "with --offsets: a navigation setting for the engine (dotted names, values as "
+        "JSON), e.g. --set engine.geometric=true --set engine.n_candidates=40; "
+        "features.* and engine.features.* must agree",
     )
     parser.add_argument(
         "--route",
@@ -323,11 +353,34 @@ def canonical_order(keys: Sequence[str]) -> tuple[npt.NDArray[np.int64], npt.NDA
     return np.asarray(order, np.int64), np.asarray(states, np.int64)
 
 
+def navigation_params(
+    descriptor: str | None = None, settings: Sequence[tuple[str, Any]] = ()
+) -> NavigationParams:
+    """The server's default :class:`~server.navigation.NavigationParams` with ``settings``
+    (dotted names, :func:`server.tuning.tuned`) and, when given, ``descriptor`` as the local
+    features of both the navigation features and the engine. ``ValueError`` names an unknown
+    or ill-typed setting, or features that differ from the engine's (the index refuses them)."""
+    from server.navigation import NavigationParams
+    from server.tuning import tuned
+
+    overrides = dict(settings)
+    if descriptor is not None:
+        overrides["features.descriptor"] = descriptor
+        overrides["engine.features.descriptor"] = descriptor
+    nav = tuned(NavigationParams(), overrides)
+    if nav.features != nav.engine.features:
+        raise ValueError(
+            "features.* and engine.features.* differ; set both (e.g. --set "
+            "features.n_features=200 --set engine.features.n_features=200)"
+        )
+    return nav
+
+
 def server_index(
-    tour: Sequence[Shot], keys: Sequence[str]
+    tour: Sequence[Shot], keys: Sequence[str], nav: NavigationParams | None = None
 ) -> tuple[TourIndex, npt.NDArray[np.int64], FeatureParams]:
-    """The tour's index as the server builds it for navigation: its default
-    :class:`~server.navigation.NavigationParams` (features, engine), the canonical image order
+    """The tour's index as the server builds it for navigation: ``nav`` (default: its default
+    :class:`~server.navigation.NavigationParams`; features, engine), the canonical image order
     and the signature weights it would use (``signature_weights``, or when ``None`` those
     :func:`~server.vision.learning.learn_weights` learns for the tour, as
     ``NavigationService._weights`` does).
@@ -341,7 +394,7 @@ def server_index(
     from server.vision.index import TourIndex
     from server.vision.learning import learn_weights
 
-    nav = NavigationParams()
+    nav = nav or NavigationParams()
     order, states = canonical_order(keys)
     index = TourIndex(nav.engine)
     index.add([extract(tour[i].image, nav.features) for i in order], states)
@@ -349,6 +402,72 @@ def server_index(
     weights = learn_weights(index, params=nav.engine) if chosen is None else chosen
     index.set_weights(np.asarray(weights, np.float64))
     return index, order, nav.features
+
+
+def pose_distance(
+    pose: Pose,
+    xs: npt.ArrayLike,
+    ys: npt.ArrayLike,
+    thetas: npt.ArrayLike,
+    *,
+    metres_per_radian: float,
+) -> npt.NDArray[np.float64]:
+    """How far taught poses are from ``pose``: ``(n,) float64`` metres, the distance between
+    the positions plus ``metres_per_radian`` times the heading difference (wrapped to
+    ``[0, pi]``), so that a taught image facing elsewhere is far even when taken on the spot.
+
+    Args:
+        pose: the camera (metres, radians).
+        xs, ys, thetas: ``(n,)`` taught positions (metres) and headings (radians).
+        metres_per_radian: what a radian of heading difference weighs, metres (>= 0).
+    """
+    if not metres_per_radian >= 0:
+        raise ValueError(f"metres_per_radian must be >= 0, got {metres_per_radian}")
+    x, y, t = (np.asarray(v, np.float64) for v in (xs, ys, thetas))
+    turn = np.abs((t - pose.theta + np.pi) % (2 * np.pi) - np.pi)
+    return np.hypot(x - pose.x, y - pose.y) + metres_per_radian * turn
+
+
+@dataclass(frozen=True)
+class TaughtPoses:
+    """Where every taught image was taken, and the tolerance within which two of them count
+    as the same view.
+
+    Attributes:
+        x, y, theta: ``(n,) float64`` positions (metres) and headings (radians), shot order.
+        radius: metres; angle: radians. Two images within both of each other are "the same".
+    """
+
+    x: npt.NDArray[np.float64]
+    y: npt.NDArray[np.float64]
+    theta: npt.NDArray[np.float64]
+    radius: float
+    angle: float
+
+    @classmethod
+    def of(cls, tour: Sequence[Shot], radius: float, angle_deg: float) -> TaughtPoses:
+        return cls(
+            np.array([s.x for s in tour], np.float64),
+            np.array([s.y for s in tour], np.float64),
+            np.array([s.theta for s in tour], np.float64),
+            float(radius),
+            math.radians(angle_deg),
+        )
+
+    def near(self, i: int) -> npt.NDArray[np.bool_]:
+        """``(n,)``: the images within ``radius`` and ``angle`` of image ``i`` (``i`` too)."""
+        turn = np.abs((self.theta - self.theta[i] + np.pi) % (2 * np.pi) - np.pi)
+        return (np.hypot(self.x - self.x[i], self.y - self.y[i]) <= self.radius) & (
+            turn <= self.angle + 1e-12
+        )
+
+    def nearest(self, pose: Pose) -> int:
+        """The taught image nearest to ``pose`` by :func:`pose_distance`, a radian weighing
+        ``radius / angle`` metres (so the tolerance's two limits weigh alike)."""
+        d = pose_distance(
+            pose, self.x, self.y, self.theta, metres_per_radian=self.radius / self.angle
+        )
+        return int(np.argmin(d))
 
 
 @dataclass(frozen=True)
@@ -360,8 +479,14 @@ class OffsetView:
         offset_m: sideways distance, metres. condition: ``same``, ``lighting`` or ``moved``.
         pose: where the camera stood (metres, radians).
         best: the shot the engine ranked first (argmax of ``Similarity.image``).
-        retrieved: ``best`` is the source or within the tolerance of the source's pose.
+        retrieved: ``best`` is ``nearest`` or within the tolerance of its pose.
         inliers: RANSAC homography inliers between the query and ``best``.
+        nearest: the taught shot nearest to ``pose`` (:meth:`TaughtPoses.nearest`).
+        retrieved_source: ``best`` is the source or within the tolerance of the source's pose
+            (the definition before 2026-11-26).
+        reachable: some taught image within the tolerance of ``nearest`` has at least the
+            required inliers with the query: a perfect retrieval would match this view.
+        ahead_m: distance to the wall or furniture across the middle of the view, metres.
     """
 
     source: int
@@ -371,32 +496,78 @@ class OffsetView:
     best: int
     retrieved: bool
     inliers: int
+    nearest: int = -1
+    retrieved_source: bool = False
+    reachable: bool = False
+    ahead_m: float = math.inf
 
 
 def offset_summary(
-    views: Sequence[OffsetView], skipped: int, *, min_inliers: int
+    views: Sequence[OffsetView],
+    skipped: int,
+    *,
+    min_inliers: int,
+    taught: TaughtPoses | None = None,
 ) -> dict[str, Any]:
-    """One cell of the report: ``matched_fraction`` (retrieved and at least ``min_inliers``
-    inliers), ``retrieved_fraction``, ``geometric_fraction``, each over the ``views`` rendered,
-    with ``matched_ci95`` (Wilson); ``views``, ``skipped`` (no free side) and
-    ``median_inliers``. Fractions are NaN without views."""
+    """One cell of the report, each fraction over the ``views`` rendered (NaN without views):
+
+    * ``matched_fraction`` (with ``matched_ci95``, Wilson): the nearest taught image retrieved
+      and at least ``min_inliers`` inliers with it; ``retrieved_fraction``: retrieved alone;
+    * ``source_matched_fraction`` (with ``source_matched_ci95``), ``source_retrieved_fraction``:
+      the same judged against the source frame (the definition before 2026-11-26);
+    * ``geometric_fraction``: at least ``min_inliers`` inliers with the best image;
+    * ``reachable_fraction``: some image within the tolerance of the nearest one has at least
+      ``min_inliers`` inliers with the query (:attr:`OffsetView.reachable`): the most any
+      retrieval could match with these features; ``faces_wall_fraction``: the view faces a wall
+      or furniture nearer than :data:`FACES_WALL_M`;
+    * ``views``, ``skipped`` (no free side), ``median_inliers``; with ``taught``, also
+      ``nearest_is_source_fraction`` (the nearest image within the tolerance of the source:
+      the two definitions judge alike) and the median distance (m) and heading difference
+      (degrees) from the camera to its nearest taught image.
+    """
     from server.bench.common import wilson_interval
 
     n = len(views)
     retrieved = np.array([v.retrieved for v in views], bool)
+    from_source = np.array([v.retrieved_source for v in views], bool)
     inliers = np.array([v.inliers for v in views], np.int64)
     geometric = inliers >= min_inliers
     matched = int((retrieved & geometric).sum())
-    lo, hi = wilson_interval(matched, n)
-    return {
+    matched_source = int((from_source & geometric).sum())
+
+    def frac(x: npt.NDArray[np.bool_]) -> float:
+        return float(x.mean()) if n else math.nan
+
+    out: dict[str, Any] = {
         "matched_fraction": matched / n if n else math.nan,
-        "retrieved_fraction": float(retrieved.mean()) if n else math.nan,
-        "geometric_fraction": float(geometric.mean()) if n else math.nan,
-        "matched_ci95": [lo, hi],
+        "retrieved_fraction": frac(retrieved),
+        "source_matched_fraction": matched_source / n if n else math.nan,
+        "source_retrieved_fraction": frac(from_source),
+        "geometric_fraction": frac(geometric),
+        "reachable_fraction": frac(np.array([v.reachable for v in views], bool)),
+        "faces_wall_fraction": frac(np.array([v.ahead_m < FACES_WALL_M for v in views], bool)),
+        "matched_ci95": list(wilson_interval(matched, n)),
+        "source_matched_ci95": list(wilson_interval(matched_source, n)),
         "views": n,
         "skipped": skipped,
         "median_inliers": float(np.median(inliers)) if n else math.nan,
     }
+    if taught is not None:
+        same = np.array([bool(taught.near(v.source)[v.nearest]) for v in views], bool)
+        dist = [
+            math.hypot(taught.x[v.nearest] - v.pose.x, taught.y[v.nearest] - v.pose.y)
+            for v in views
+        ]
+        turn = [
+            math.degrees(
+                abs((taught.theta[v.nearest] - v.pose.theta + math.pi) % (2 * math.pi) - math.pi)
+            )
+            for v in views
+        ]
+        out["nearest_is_source_fraction"] = frac(same)
+        out["nearest_m_median"] = float(np.median(dist)) if n else math.nan
+        out["nearest_deg_median"] = float(np.median(turn)) if n else math.nan
+    return out
 
 
 def pick_sources(keys: Sequence[str], n: int, seed: int) -> list[int]:
@@ -425,6 +596,144 @@ def free_space(plan: FloorPlan, radius_m: float) -> Callable[[float, float], boo
     return is_free
 
 
+@dataclass(frozen=True)
+class SideView:
+    """A camera frame rendered beside the taught path (before the engine sees it).
+
+    Attributes:
+        source: the taught path frame it was moved from; offset_m: metres; condition: as
+        rendered; shot: the frame (camera noise, JPEG) and its pose; ahead_m: distance to the
+        wall or furniture across the middle of the view (median over rays within
+        :data:`AHEAD_DEG` of the heading), metres.
+    """
+
+    source: int
+    offset_m: float
+    condition: str
+    shot: Shot
+    ahead_m: float = math.inf
+
+
+def render_side_views(
+    plan: FloorPlan,
+    tour: Sequence[Shot],
+    keys: Sequence[str],
+    *,
+    offsets: Sequence[float],
+    conditions: Sequence[str],
+    n_sources: int,
+    seed: int,
+    turn_deg: float,
+) -> tuple[list[SideView], dict[float, int]]:
+    """Render the views beside the taught path (see the module docstring): sources from
+    ``seed``, sides and turns from ``seed + 2``, camera noise from ``seed + 1`` per offset.
+
+    Returns:
+        every rendered view (offsets within conditions) and the number skipped per offset
+        (no free side; the same in every condition).
+    """
+    from robot_client.sim import RobotParams, SimWorld
+    from robot_client.sim.world import Pose
+
+    sources = pick_sources(keys, n_sources, seed)
+    is_free = free_space(plan, RobotParams().radius_m)
+    source_poses = [Pose(tour[i].x, tour[i].y, tour[i].theta) for i in sources]
+    poses = {
+        off: side_poses(source_poses, off, seed=seed + 2, is_free=is_free, turn_deg=turn_deg)
+        for off in offsets
+    }
+    skipped = {off: sum(p is None for p in ps) for off, ps in poses.items()}
+    views: list[SideView] = []
+    rays = np.radians(np.linspace(-AHEAD_DEG, AHEAD_DEG, 5))
+    for condition in conditions:
+        with SimWorld(plan, condition=condition, seed=seed) as world:
+            for off in offsets:
+                noise = np.random.default_rng(seed + 1)
+                for src, pose in zip(sources, poses[off], strict=True):
+                    if pose is not None:
+                        shot = camera_shot(world, pose, noise)
+                        ahead = float(np.median(world.cast_rays(pose.x, pose.y, pose.theta + rays)))
+                        views.append(SideView(src, off, condition, shot, ahead))
+    return views, skipped
+
+
+def score_side_views(
+    views: Sequence[SideView],
+    index: TourIndex,
+    order: npt.NDArray[np.int64],
+    features: FeatureParams,
+    taught: TaughtPoses,
+    *,
+    min_inliers: int = 10,
+) -> list[OffsetView]:
+    """What the engine (``index``, its images in ``order``, queries extracted with
+    ``features``) makes of every view: the best image, whether it is the nearest taught image
+    (and the source), its RANSAC inliers with the query, and whether any image within the
+    tolerance of the nearest has ``min_inliers`` of them (:func:`reachable`)."""
+    from robot_client.sim.world import Pose
+    from server.vision.features import extract
+
+    position = np.empty(len(order), np.int64)  # shot -> image index
+    position[order] = np.arange(len(order))
+    out = []
+    for v in views:
+        q = extract(v.shot.image, features)
+        k = int(np.argmax(index.query(q).image))
+        best = int(order[k])
+        pose = Pose(v.shot.x, v.shot.y, v.shot.theta)
+        nearest = taught.nearest(pose)
+        retrieved = bool(taught.near(nearest)[best])
+        inliers = int(index.geometric_inliers(q, [k])[0])
+        out.append(
+            OffsetView(
+                source=v.source,
+                offset_m=v.offset_m,
+                condition=v.condition,
+                pose=pose,
+                best=best,
+                retrieved=retrieved,
+                inliers=inliers,
+                nearest=nearest,
+                retrieved_source=bool(taught.near(v.source)[best]),
+                # a matched view is reachable: its best image is one such image
+                reachable=(retrieved and inliers >= min_inliers)
+                or reachable(index, q, position, taught, pose, nearest, min_inliers),
+                ahead_m=v.ahead_m,
+            )
+        )
+    return out
+
+
+def reachable(
+    index: TourIndex,
+    query: ImageFeatures,
+    position: npt.NDArray[np.int64],
+    taught: TaughtPoses,
+    pose: Pose,
+    nearest: int,
+    min_inliers: int,
+    *,
+    batch: int = 8,
+) -> bool:
+    """Whether some taught image within the tolerance of ``nearest`` shares at least
+    ``min_inliers`` RANSAC inliers with ``query`` (the view's features): whether a perfect
+    retrieval could match the view. Images are tried nearest to ``pose`` first, ``batch`` at
+    a time, until one has enough. ``position[shot]`` is the shot's image index in ``index``."""
+    ok = np.flatnonzero(taught.near(nearest))
+    d = pose_distance(
+        pose,
+        taught.x[ok],
+        taught.y[ok],
+        taught.theta[ok],
+        metres_per_radian=taught.radius / taught.angle,
+    )
+    ranked = position[ok[np.argsort(d, kind="stable")]]
+    for lo in range(0, len(ranked), batch):
+        if int(index.geometric_inliers(query, ranked[lo : lo + batch]).max()) >= min_inliers:
+            return True
+    return False
+
+
 def evaluate_offsets(
     plan: FloorPlan,
     tour: Sequence[Shot],
@@ -437,54 +746,29 @@ def evaluate_offsets(
     turn_deg: float,
     radius: float,
     angle_deg: float,
+    min_inliers: int = 10,
+    nav: NavigationParams | None = None,
 ) -> tuple[list[OffsetView], dict[float, int], list[float]]:
-    """Query the server's engine from beside the taught path.
+    """Query the server's engine (``nav``, default: the server's defaults) from beside the
+    taught path.
 
     Returns:
         every rendered view (all offsets and conditions), the number of views skipped per
         offset (no free side; the same in every condition) and the weights used.
     """
-    from robot_client.sim import RobotParams, SimWorld
-    from robot_client.sim.world import Pose
-    from server.vision.features import extract
-
-    index, order, fp = server_index(tour, keys)
-    tx = np.array([s.x for s in tour])
-    ty = np.array([s.y for s in tour])
-    tt = np.array([s.theta for s in tour])
-    sources = pick_sources(keys, n_sources, seed)
-    is_free = free_space(plan, RobotParams().radius_m)
-    source_poses = [Pose(tour[i].x, tour[i].y, tour[i].theta) for i in sources]
-    poses = {
-        off: side_poses(source_poses, off, seed=seed + 2, is_free=is_free, turn_deg=turn_deg)
-        for off in offsets
-    }
-    skipped = {off: sum(p is None for p in ps) for off, ps in poses.items()}
-    views: list[OffsetView] = []
-    for condition in conditions:
-        with SimWorld(plan, condition=condition, seed=seed) as world:
-            for off in offsets:
-                noise = np.random.default_rng(seed + 1)
-                for src, pose in zip(sources, poses[off], strict=True):
-                    if pose is None:
-                        continue
-                    q = extract(camera_shot(world, pose, noise).image, fp)
-                    k = int(np.argmax(index.query(q).image))
-                    best = int(order[k])
-                    turn = np.abs((tt - tt[src] + np.pi) % (2 * np.pi) - np.pi)
-                    near = np.hypot(tx - tx[src], ty - ty[src]) <= radius
-                    near &= turn <= math.radians(angle_deg)
-                    views.append(
-                        OffsetView(
-                            source=src,
-                            offset_m=off,
-                            condition=condition,
-                            pose=pose,
-                            best=best,
-                            retrieved=best == src or bool(near[best]),
-                            inliers=int(index.geometric_inliers(q, [k])[0]),
-                        )
-                    )
+    index, order, fp = server_index(tour, keys, nav)
+    rendered, skipped = render_side_views(
+        plan,
+        tour,
+        keys,
+        offsets=offsets,
+        conditions=conditions,
+        n_sources=n_sources,
+        seed=seed,
+        turn_deg=turn_deg,
+    )
+    taught = TaughtPoses.of(tour, radius, angle_deg)
+    views = score_side_views(rendered, index, order, fp, taught, min_inliers=min_inliers)
     return views, skipped, [round(float(x), 4) for x in index.weights]
 
 
@@ -507,6 +791,17 @@ def run_offsets(args: argparse.Namespace, plan: FloorPlan, route: tuple[str, ...
     if args.queries < 1:
         print(f"teachrepeat bench sim-retrieval: --queries must be at least 1, not {args.queries}")
         return 2
+    if not (args.radius > 0 and 0 < args.angle <= 180):
+        print(
+            "teachrepeat bench sim-retrieval: --radius must be > 0 and --angle in (0, 180], "
+            f"not {args.radius} and {args.angle}"
+        )
+        return 2
+    try:
+        nav = navigation_params(args.descriptor, args.settings)
+    except ValueError as exc:
+        print(f"teachrepeat bench sim-retrieval: --set: {exc}")
+        return 2
     conditions = list(dict.fromkeys(args.condition or ["same"]))
     t0 = time.perf_counter()
     tour, keys = teach(plan, route)
@@ -521,24 +816,33 @@ def run_offsets(args: argparse.Namespace, plan: FloorPlan, route: tuple[str, ...
         turn_deg=args.turn_deg,
         radius=args.radius,
         angle_deg=args.angle,
+        min_inliers=args.min_inliers,
+        nav=nav,
     )
+    taught = TaughtPoses.of(tour, args.radius, args.angle)
     n_sources = len(pick_sources(keys, args.queries, args.seed))
     print(
         f"tour: {len(tour)} images; {n_sources} path frames moved sideways, turned up to "
-        f"{args.turn_deg:g} deg; weights {weights}"
+        f"{args.turn_deg:g} deg; descriptor {nav.features.descriptor}; weights {weights}"
     )
-    print("offset  condition  views  skipped  matched  retrieved  geometric  median inliers")
+    print(
+        "offset  condition  views  skipped  matched  retrieved  geometric  median inliers  "
+        "reachable  faces wall | from source: matched  retrieved"
+    )
     per_condition: dict[str, dict[str, Any]] = {}
     for condition in conditions:
         cells: dict[str, Any] = {}
         for off in offsets:
             mine = [v for v in views if v.condition == condition and v.offset_m == off]
-            cell = offset_summary(mine, skipped[off], min_inliers=args.min_inliers)
+            cell = offset_summary(mine, skipped[off], min_inliers=args.min_inliers, taught=taught)
             cells[labels[off]] = {"offset_m": off, **cell}
             print(
                 f"{off:5.2f} m {condition:10s} {cell['views']:5d}  {cell['skipped']:7d}  "
                 f"{cell['matched_fraction']:7.3f}  {cell['retrieved_fraction']:9.3f}  "
-                f"{cell['geometric_fraction']:9.3f}  {cell['median_inliers']:14.1f}"
+                f"{cell['geometric_fraction']:9.3f}  {cell['median_inliers']:14.1f}  "
+                f"{cell['reachable_fraction']:9.3f}  {cell['faces_wall_fraction']:10.3f} "
+                f"| {cell['source_matched_fraction']:20.3f}  "
+                f"{cell['source_retrieved_fraction']:9.3f}"
             )
         per_condition[condition] = {"offsets": cells}
     result: dict[str, Any] = {
@@ -553,6 +857,10 @@ def run_offsets(args: argparse.Namespace, plan: FloorPlan, route: tuple[str, ...
         "angle_deg": args.angle,
         "turn_deg": args.turn_deg,
         "min_inliers": args.min_inliers,
+        "nearest": "the taught image with the smallest position distance + heading difference "
+        "x radius / angle (m per rad); retrieved = best within radius and angle of it",
+        "descriptor": nav.features.descriptor,
+        "settings": dict(args.settings),
         "condition": conditions[0],
         "weights": weights,
         "offsets": per_condition[conditions[0]]["offsets"],
@@ -582,6 +890,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.offsets is not None:
         return run_offsets(args, plan, route)
+    if args.descriptor is not None or args.settings:
+        print("teachrepeat bench sim-retrieval: --descriptor and --set go with --offsets")
+        return 2
     conditions = list(dict.fromkeys(args.condition or CONDITIONS))
     t0 = time.perf_counter()
     tour, keys = teach(plan, route)

@@ -14,13 +14,14 @@ Pure: NumPy, OpenCV, SciPy and networkx through the core; no I/O, no HTTP, no st
 from server.navigation.command import BEHAVIOURS, Command, Proposal
 from server.navigation.navigator import Navigator, Step
 from server.navigation.observation import Frame, Observation
-from server.navigation.params import ROBUST_WEIGHTS, NavigationParams
+from server.navigation.params import ROBUST_WEIGHTS, AmbiguityParams, NavigationParams
 from server.navigation.runtime import TourRuntime
 from server.navigation.task import Task, TaskState
 
 __all__ = [
     "BEHAVIOURS",
     "ROBUST_WEIGHTS",
+    "AmbiguityParams",
     "Command",
     "Frame",
     "NavigationParams",

@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from server.belief.model import Action
 from server.belief.tracker import BeliefSummary, Tracker
+from server.navigation.ambiguity import separate
 from server.navigation.command import Command, Proposal
 from server.navigation.runtime import TourRuntime, preferred
 from server.policy.voting import Decision, decide
@@ -196,8 +197,15 @@ def perceive(
     summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt)
     similarity = preferred(similarities, summary)
     decision = decide(
-        runtime.graph, summary.belief, goal, runtime.costs(goal), p.policy, hold_goal=hold_goal
+        runtime.graph,
+        summary.belief,
+        goal,
+        runtime.costs(goal),
+        runtime.policy_params,
+        hold_goal=hold_goal,
     )
+    if p.ambiguity.disambiguate:
+        decision = separate(runtime, summary.belief, decision, goal, hold_goal=hold_goal)
     mass = float(summary.belief[runtime.at_location[goal]].sum())
     agrees = summary.evidence >= p.tracker.localised_evidence
     at_goal = mass >= p.arrive_mass and agrees and steps + 1 >= p.arrive_min_steps

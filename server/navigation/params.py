@@ -10,11 +10,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from server.belief.mcl import MclParams
 from server.belief.model import TransitionParams
 from server.belief.tracker import TrackerParams
 from server.motion import MotionParams
 from server.policy.costs import CostParams
+from server.policy.disambiguation import DisambiguationParams
 from server.policy.voting import PolicyParams
+from server.vision.distinctiveness import DistinctivenessParams
 from server.vision.features import FeatureParams
 from server.vision.index import EngineParams
 
@@ -22,6 +25,32 @@ ROBUST_WEIGHTS: tuple[float, ...] = (0.1, 0.0, 0.1, 0.1, 0.7)
 """First-pass weights of the blocks (histogram, thumbnail, descriptor mean, descriptor variance,
 patch-normalised thumbnail) that hold up under lighting changes: mostly the locally normalised
 thumbnail."""
+
+
+@dataclass(frozen=True)
+class AmbiguityParams:
+    """Ambiguity-aware navigation (seed 000, docs/ambiguity.md).
+
+    * ``route_weight`` (0, 1/nat): the trade-off of least-ambiguous routes, lambda: every step
+      of an edge costs ``1 + lambda x`` the mean entropy of its two images times its duration
+      (:mod:`server.policy.costs`; it sets ``CostParams.ambiguity_weight`` of both the cost to
+      go and the votes). 0 = time only, today's behaviour. Off by default: not shown to help
+      in the closed loop (docs/ambiguity.md).
+    * ``disambiguate`` (False): when the belief holds two or more separated hypotheses, act to
+      separate them (:mod:`server.policy.disambiguation`, ``disambiguation`` its settings).
+      Off by default: not shown to help in the closed loop (docs/ambiguity.md).
+    * ``distinctiveness``: how every taught image's entropy is computed
+      (:mod:`server.vision.distinctiveness`); always computed when a tour changes.
+    """
+
+    route_weight: float = 0.0
+    disambiguate: bool = False
+    distinctiveness: DistinctivenessParams = field(default_factory=DistinctivenessParams)
+    disambiguation: DisambiguationParams = field(default_factory=DisambiguationParams)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.route_weight) and self.route_weight >= 0):
+            raise ValueError(f"route_weight must be finite and >= 0, got {self.route_weight}")
 
 
 @dataclass(frozen=True)
@@ -145,6 +174,11 @@ class NavigationParams:
       state under changed light agreed with the unchanged one for 0.78 of 120 random poses vs
       0.33) but make places less distinct in unchanged light (7/20 with 7 wrong arrivals vs
       15/20 with 1-2), so they are an option, not the default.
+    * ``ambiguity``: distinctiveness, least-ambiguous routes and active disambiguation
+      (:class:`AmbiguityParams`).
+    * ``mcl``: Monte-Carlo localisation over the taught images' poses, reported beside the
+      topological belief and never steering (:class:`server.belief.mcl.MclParams`; off by
+      default: it costs ~1 ms a frame and needs taught poses).
     """
 
     arrive_mass: float = 0.6
@@ -188,6 +222,8 @@ class NavigationParams:
     policy: PolicyParams = field(default_factory=PolicyParams)
     costs: CostParams = field(default_factory=CostParams)
     motion: MotionParams = field(default_factory=MotionParams)
+    ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
+    mcl: MclParams = field(default_factory=MclParams)
 
     def __post_init__(self) -> None:
         if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -13,6 +14,8 @@ from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
 from server.navigation.params import NavigationParams
 from server.policy.costs import cost_to_goal
+from server.policy.disambiguation import fine_profiles
+from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
 from server.vision.index import Similarity, TourIndex
 
@@ -41,6 +44,15 @@ class TourRuntime:
         if graph.n_images:
             self.index.add(self.features, graph.image_state)
         self.model: BeliefModel = build_model(graph, params.transitions)
+        # the one trade-off of least-ambiguous routes, for the cost to go and the votes alike
+        weight = params.ambiguity.route_weight
+        self.cost_params = replace(params.costs, ambiguity_weight=weight)
+        self.policy_params = replace(
+            params.policy, costs=replace(params.policy.costs, ambiguity_weight=weight)
+        )
+        # (n_fine, n_states) the view at each fine state against every state; set with the
+        # distinctiveness when disambiguation needs it
+        self.fine_profile: npt.NDArray[np.float32] | None = None
         self._costs = lru_cache(maxsize=64)(self._cost_to_goal)
         # canonical index of edge e's first image
         self._edge_first = graph.n_images - int(graph.edge_offsets[-1]) + graph.edge_offsets
@@ -98,6 +110,28 @@ class TourRuntime:
         self._ambiguity[location] = out = float(np.mean(best))
         return out
 
+    def distinctiveness(self) -> Distinctiveness:
+        """Every image's distinctiveness and the views' similarity profiles, computed now
+        (:mod:`server.vision.distinctiveness`; one engine query per sampled image: call it
+        once the index has its weights)."""
+        return image_entropy(
+            self.index,
+            self.features,
+            image_layout(self.graph),
+            self.params.ambiguity.distinctiveness,
+        )
+
+    def attach_distinctiveness(
+        self, entropy: npt.ArrayLike, computed: Distinctiveness | None = None
+    ) -> None:
+        """Give the tour's images their ``(n_images,)`` entropies (stored or just computed,
+        :mod:`server.vision.distinctiveness`), and with ``computed`` the views' similarity
+        profiles disambiguation needs. Part of building the runtime, before it is shared."""
+        self.graph = replace(self.graph, image_entropy=np.asarray(entropy, dtype=np.float64))
+        if computed is not None:
+            self.fine_profile = fine_profiles(self.graph, computed.profile, computed.row_of)
+        self._costs.cache_clear()
+
     def moving_from(self, edge: int, k: int) -> int | None:
         """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
         when the robot stood still from ``k`` to the end)."""
@@ -105,7 +139,7 @@ class TourRuntime:
         return None if nxt < 0 else nxt
 
     def _cost_to_goal(self, goal: int) -> FloatArray:
-        return cost_to_goal(self.graph, goal, self.params.costs)
+        return cost_to_goal(self.graph, goal, self.cost_params)
 
     def costs(self, goal: int) -> FloatArray:
         """``(n_locations,)`` seconds to reach location ``goal`` from every location."""
@@ -122,6 +156,17 @@ class TourRuntime:
         per model, for :meth:`Tracker.step` to weigh."""
         sims = self.index.query_models(features, n_states=self.graph.n_states)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
+
+
+def image_layout(graph: TourGraph) -> ImageLayout:
+    """Where the images of ``graph`` are, as :mod:`server.vision.distinctiveness` takes it."""
+    return ImageLayout(
+        state=graph.image_state,
+        along=graph.image_along,
+        ends=graph.image_ends,
+        n_place_images=graph.n_images - int(graph.edge_offsets[-1]),
+        n_states=graph.n_states,
+    )
 
 
 def preferred(sims: tuple[Similarity, ...], summary: BeliefSummary) -> Similarity:

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 from server import schemas
 from server.imaging import ImageLimits
 from server.navigation import NavigationParams
+from server.recording.recorder import Recorder
+from server.recording.store import RecordingStore, Retention
+from server.services.households import HouseholdService, Identities, LoginParams
 from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
@@ -21,8 +25,11 @@ class Services:
     limits: ImageLimits
     tours: TourService
     robots: RobotService
+    households: HouseholdService
+    identities: Identities
     teaching: TeachingService
     navigation: NavigationService
+    recordings: Recorder
 
     @classmethod
     def build(
@@ -33,7 +40,13 @@ class Services:
         limits: ImageLimits,
         navigation: NavigationParams | None = None,
         concurrent_steps: int = 1,
+        logins: LoginParams | None = None,
+        recordings: Path,
+        record_all: bool = False,
+        retention: Retention | None = None,
     ) -> Services:
+        """``recordings``: the folder of the recordings (created on first use);
+        ``record_all``: record every teaching tour and navigation task."""
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
             repo,
@@ -44,14 +57,26 @@ class Services:
         )
         teaching.is_navigating = nav.is_navigating
         teaching.on_change = nav.tour_changed
+        recorder = Recorder(
+            RecordingStore(recordings, retention),
+            repo,
+            record_all=record_all,
+            params=nav.params,
+        )
+        nav.observers.append(recorder)
+        teaching.observers.append(recorder)
+        identities = Identities(repo)
         return cls(
             repo=repo,
             admin_token=admin_token,
             limits=limits,
             tours=TourService(repo),
-            robots=RobotService(repo),
+            robots=RobotService(repo, identities),
+            households=HouseholdService(repo, identities, logins or LoginParams()),
+            identities=identities,
             teaching=teaching,
             navigation=nav,
+            recordings=recorder,
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:
@@ -69,5 +94,6 @@ class Services:
         return schemas.RobotState(name=robot, mode=mode, teaching=teaching, navigation=navigation)
 
     def close(self) -> None:
+        self.recordings.close()
         self.navigation.close()
         self.repo.close()

@@ -8,6 +8,7 @@ server resumes a navigation where it was instead of starting from a uniform beli
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -15,20 +16,52 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
+from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary
 from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
 from server.navigation import Command, NavigationParams, Task, TaskState, TourRuntime
-from server.session import RobotSession
+from server.policy.voting import Decision
+from server.session import RobotSession, StepRecord
 from server.storage.repo import NavigationRow, Repo
 from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.learning import learn_weights
+
+log = logging.getLogger(__name__)
 
 BELIEF_SNAPSHOT_S = 1.0
 """Wall-clock seconds between two persisted belief snapshots of a navigating robot."""
 PREBUILD_DELAY_S = 1.0
 """After teaching changes a tour, wait this long for more changes before preparing it."""
+
+
+class NavigationObserver:
+    """Told of every task and every step, under the robot's session lock (so in order), by
+    :class:`NavigationService`: the recordings (:mod:`server.recording`) and the replay.
+    Each method does nothing here; an observer overrides those it needs. A method that raises
+    is logged and never fails the robot's request."""
+
+    def task_started(
+        self, robot: str, session: RobotSession, tour_id: int, *, record: bool | None, resumed: bool
+    ) -> None:
+        """``session`` has a new task (``goto``), or resumed one after a restart (``resumed``);
+        ``record`` is the task's own recording choice (``None``: the server's setting)."""
+
+    def stepped(
+        self,
+        robot: str,
+        session: RobotSession,
+        step: StepRecord,
+        result: schemas.NavigationFrameResult,
+        meta: schemas.FrameMeta,
+        wall: float,
+    ) -> None:
+        """One frame was answered: what the step saw and decided, and the answer sent."""
+
+    def task_ended(self, robot: str, task: schemas.TaskPublic) -> None:
+        """The task is no longer underway (arrived or failed in a step, stopped, replaced by
+        a new goal, or failed by the silence watchdog)."""
 
 
 class NavigationService:
@@ -66,6 +99,19 @@ class NavigationService:
         self._wake = threading.Event()
         self._closed = False
         self._worker: threading.Thread | None = None
+        self.observers: list[NavigationObserver] = []
+
+    def _tell(self, call: Callable[[NavigationObserver], None]) -> None:
+        """``call(observer)`` for every observer; an observer's error is logged, never raised."""
+        for observer in self.observers:
+            try:
+                call(observer)
+            except Exception:
+                log.exception("navigation observer %s failed", type(observer).__name__)
+
+    def _ended(self, robot: str, task: Task) -> None:
+        ended = task_public(task, self._tour_of[robot])
+        self._tell(lambda o: o.task_ended(robot, ended))
 
     def close(self) -> None:
         """Stop the background builder."""
@@ -140,7 +186,22 @@ class NavigationService:
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
+        self._distinctiveness(tour_id, rt)
         return rt
+
+    def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
+        """The images' entropies: stored when computed over this very set of images, else
+        computed now (one engine query per sampled image) and stored; computed anyway when
+        disambiguation needs the views' similarity profiles."""
+        graph = rt.graph
+        stored = graph.has_entropy and self.repo.entropy_images(tour_id) == graph.n_images
+        if stored and not self.params.ambiguity.disambiguate:
+            return
+        found = rt.distinctiveness()
+        rt.attach_distinctiveness(found.entropy, found)
+        if not stored:
+            ids = [int(i) for i in graph.image_ids]
+            self.repo.set_entropies(tour_id, list(zip(ids, found.entropy.tolist(), strict=True)))
 
     def _features(self, graph: TourGraph) -> list[ImageFeatures]:
         """Features of every image of ``graph`` in canonical order: stored ones are reused,
@@ -215,6 +276,13 @@ class NavigationService:
         with self._lock:
             self._sessions[row.robot] = session
             self._tour_of[row.robot] = row.tour_id
+        if session.task is not None and session.task.underway:
+            with session.lock:
+                self._tell(
+                    lambda o: o.task_started(
+                        row.robot, session, row.tour_id, record=None, resumed=True
+                    )
+                )
         return session
 
     def is_navigating(self, robot: str) -> bool:
@@ -257,14 +325,25 @@ class NavigationService:
     def goto(self, robot: str, body: schemas.GotoRequest) -> schemas.TaskPublic:
         if self.is_teaching(robot):
             raise Conflict(f"robot {robot!r} is teaching; finish or abort teaching first")
-        tour_id = body.tour if body.tour is not None else self._default_tour(robot)
-        self.repo.tour(tour_id)  # 404 when unknown
-        location_id = self.repo.location_by_name(tour_id, body.location)
-        if location_id is None:
-            names = [loc.name for loc in self.repo.locations(tour_id)]
+        household = self.repo.robot_household(robot)
+        tour_id = body.tour if body.tour is not None else self._default_tour(robot, household)
+        self.repo.tour(tour_id, household)  # 404 when unknown or another household's
+        places = {loc.name: loc for loc in self.repo.locations(tour_id)}
+        place = places.get(body.location)
+        if place is None:
             raise NotFound(
-                f"tour {tour_id} has no place named {body.location!r}; its places are {names}"
+                f"tour {tour_id} has no place named {body.location!r}; its places are "
+                f"{list(places)}"
             )
+        if not place.image_ids:
+            raise Conflict(
+                f"place {body.location!r} of tour {tour_id} has no image, so the robot could "
+                "not recognise arriving there. Give it one: with the robot at the place, start "
+                f"teaching tour {tour_id} (POST /robots/{robot}/teach/start), mark "
+                f"{body.location!r} (POST /robots/{robot}/teach/locations), post a spin image "
+                f"(POST /robots/{robot}/teach/spin) and finish"
+            )
+        location_id = place.id
         rt = self.runtime(tour_id)
         goal = _location_index(rt.graph, location_id)
         if goal is None:  # pragma: no cover - the runtime was just built
@@ -281,25 +360,32 @@ class NavigationService:
                 session.task.end(
                     TaskState.CANCELLED, f"replaced by a new goal: {body.location}", now
                 )
+                replaced = task_public(session.task, tour_id)
+                self._tell(lambda o: o.task_ended(robot, replaced))
             task = Task(
                 id=self.repo.next_task_id(), goal=goal, goal_name=body.location, started_at=now
             )
             session.start_task(task)
             session.last_frame_wall = now
             self._persist(session, belief=True)
+            self._tell(
+                lambda o: o.task_started(robot, session, tour_id, record=body.record, resumed=False)
+            )
             return task_public(task, tour_id)
 
-    def _default_tour(self, robot: str) -> int:
+    def _default_tour(self, robot: str, household: int | None) -> int:
         if robot in self._tour_of:
             return self._tour_of[robot]
         row = self.repo.navigation(robot)
         if row is not None:
             return row.tour_id
-        tours = self.repo.tours()
+        tours = self.repo.tours(household)
         if len(tours) == 1:
             return tours[0][0].id
-        raise Invalid(
-            f"say which tour robot {robot!r} navigates in: pass 'tour' (GET /tours lists them)"
+        # the request is well formed; what is missing is a tour the robot used before
+        raise Conflict(
+            f"say which tour robot {robot!r} navigates in: it has not navigated yet and there "
+            f"are {len(tours)} tours; pass 'tour' (GET /tours lists them)"
         )
 
     def stop(self, robot: str) -> schemas.TaskPublic:
@@ -310,7 +396,9 @@ class NavigationService:
         with session.lock:
             task.end(TaskState.CANCELLED, "stopped on request", self.clock())
             self._persist(session, belief=True)
-            return task_public(task, self._tour_of[robot])
+            public = task_public(task, self._tour_of[robot])
+            self._tell(lambda o: o.task_ended(robot, public))
+            return public
 
     def frame(
         self, robot: str, data: bytes, meta: schemas.FrameMeta
@@ -345,40 +433,14 @@ class NavigationService:
             due = now - self._snapshot_at.get(robot, 0.0) >= BELIEF_SNAPSHOT_S
             if task is not None and (changed or (task.underway and due)):
                 self._persist(session, belief=True)
-            votes = (
-                {}
-                if record.decision is None
-                else {str(k): float(v) for k, v in record.decision.votes.items()}
+            public = None if task is None else task_public(task, self._tour_of[robot])
+            result = frame_result(
+                record, session.runtime.graph, public, ttl_s=self.params.motion.ttl_s
             )
-            return schemas.NavigationFrameResult(
-                mode="navigating",
-                command=self._command_public(
-                    session,
-                    record.command,
-                    None if record.outcome is None else record.outcome.reason,
-                ),
-                task=None if task is None else task_public(task, self._tour_of[robot]),
-                belief=belief_public(record.summary, session.runtime.graph),
-                votes=votes,
-            )
-
-    def _command_public(
-        self, session: RobotSession, command: Command, reason: str | None = None
-    ) -> schemas.MotionCommand:
-        graph = session.runtime.graph
-        edge = command.action.edge
-        return schemas.MotionCommand(
-            v=command.v,
-            w=command.w,
-            ttl_s=self.params.motion.ttl_s,
-            action=command.action.kind.value,
-            edge=None if edge is None else graph.edges[edge].id,
-            target_image_id=None
-            if command.target_image is None
-            else int(graph.image_ids[command.target_image]),
-            behaviour=command.behaviour,
-            reason=reason,
-        )
+            self._tell(lambda o: o.stepped(robot, session, record, result, meta, now))
+            if changed and task is not None and public is not None and not task.underway:
+                self._tell(lambda o: o.task_ended(robot, public))
+            return result
 
     def state(self, robot: str) -> schemas.NavigationState | None:
         session = self.session(robot)
@@ -394,8 +456,11 @@ class NavigationService:
                 belief=belief_public(summary, session.runtime.graph),
                 last_command=None
                 if session.last_command is None
-                else self._command_public(
-                    session, session.last_command, session.navigator.previous_reason
+                else command_public(
+                    session.runtime.graph,
+                    session.last_command,
+                    session.navigator.previous_reason,
+                    ttl_s=self.params.motion.ttl_s,
                 ),
             )
 
@@ -409,6 +474,8 @@ class NavigationService:
             with session.lock:
                 if session.check_silence(now):
                     self._persist(session, belief=True)
+                    if session.task is not None:
+                        self._ended(session.robot, session.task)
                     failed += 1
         return failed
 
@@ -423,6 +490,50 @@ def _location_index(graph: TourGraph, location_id: int) -> int | None:
         if loc.id == location_id:
             return k
     return None
+
+
+def frame_result(
+    record: StepRecord,
+    graph: TourGraph,
+    task: schemas.TaskPublic | None,
+    *,
+    ttl_s: float,
+) -> schemas.NavigationFrameResult:
+    """The answer to a navigating robot's frame, from what its step saw and decided."""
+    votes = (
+        {}
+        if record.decision is None
+        else {str(k): float(v) for k, v in record.decision.votes.items()}
+    )
+    reason = None if record.outcome is None else record.outcome.reason
+    return schemas.NavigationFrameResult(
+        mode="navigating",
+        command=command_public(graph, record.command, reason, ttl_s=ttl_s),
+        task=task,
+        belief=belief_public(record.summary, graph),
+        votes=votes,
+        pose=None if record.mcl is None else pose_public(record.mcl),
+        disambiguation=disambiguation_public(record.decision, graph),
+    )
+
+
+def command_public(
+    graph: TourGraph, command: Command, reason: str | None, *, ttl_s: float
+) -> schemas.MotionCommand:
+    """A motion command as the robot receives it (storage ids of its edge and target image)."""
+    edge = command.action.edge
+    return schemas.MotionCommand(
+        v=command.v,
+        w=command.w,
+        ttl_s=ttl_s,
+        action=command.action.kind.value,
+        edge=None if edge is None else graph.edges[edge].id,
+        target_image_id=None
+        if command.target_image is None
+        else int(graph.image_ids[command.target_image]),
+        behaviour=command.behaviour,
+        reason=reason,
+    )
 
 
 def task_public(task: Task, tour_id: int) -> schemas.TaskPublic:
@@ -457,7 +568,32 @@ def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPub
         s = summary.localised_state
         localised = state_public(graph, s, float(summary.state[s]))
     return schemas.BeliefPublic(
-        top=top, entropy=summary.entropy, localised=summary.localised, localised_state=localised
+        top=top,
+        entropy=summary.entropy,
+        localised=summary.localised,
+        localised_state=localised,
+        appearance=[round(float(x), 4) for x in summary.appearance],
+    )
+
+
+def pose_public(estimate: MclEstimate) -> schemas.PosePublic:
+    return schemas.PosePublic(
+        x=round(estimate.x, 4),
+        y=round(estimate.y, 4),
+        theta=round(estimate.theta, 4),
+        std_m=round(estimate.std_m, 4),
+        mode_mass=round(estimate.mode_mass, 4),
+    )
+
+
+def disambiguation_public(
+    decision: Decision | None, graph: TourGraph
+) -> schemas.DisambiguationPublic | None:
+    if decision is None or not decision.hypotheses:
+        return None
+    return schemas.DisambiguationPublic(
+        between=[state_public(graph, s, p) for s, p in decision.hypotheses],
+        separating=decision.separating,
     )
 
 

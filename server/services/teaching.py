@@ -4,12 +4,19 @@
 ``mark "X"`` closes the open path as the edge (previous place -> X), creating X when new ->
 spin images belong to X -> more frames open the next path from X -> ... -> ``finish``.
 
+Every place needs an image to be recognised and driven to. A place reached by a path that has
+none yet gets the path's last frame (what the robot saw arriving); the first spin image posted
+there replaces that copy, so a client that posts spin images (``robot teach``, the guide) gets
+exactly its spin images. The starting place has no path: it needs a spin image, and ``finish``
+(like ``goto``) refuses a place without an image, saying how to give it one.
+
 Every step that changes the graph is one transaction: an edge appears with all its images or
 not at all, and an aborted path is discarded, never stored as a broken edge.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 from server import schemas
@@ -19,6 +26,31 @@ from server.services.tours import TourService, edge_public, location_public
 from server.storage.repo import Repo, TeachingRow
 
 MIN_EDGE_IMAGES = 2
+
+log = logging.getLogger(__name__)
+
+
+class TeachingObserver:
+    """Told of every teaching step after it committed (the recordings: :mod:`server.recording`).
+    Each method does nothing here; an observer overrides those it needs. A method that raises
+    is logged and never fails the robot's request."""
+
+    def teaching_started(self, robot: str, tour_id: int, *, record: bool | None) -> None:
+        """``robot`` began teaching ``tour_id``; ``record``: the tour's own recording choice
+        (``None``: the server's setting)."""
+
+    def teaching_image(
+        self, robot: str, tour_id: int, data: bytes, meta: schemas.FrameMeta, *, spin: bool
+    ) -> None:
+        """A frame of the open path, or a spin image of the current place, was stored."""
+
+    def teaching_marked(self, robot: str, tour_id: int, result: schemas.MarkResult) -> None:
+        """A place was named ("this is the kitchen")."""
+
+    def teaching_ended(
+        self, robot: str, tour_id: int, ended: schemas.TeachingEnded, *, finished: bool
+    ) -> None:
+        """Teaching finished (``finished``) or was aborted."""
 
 
 class TeachingService:
@@ -37,6 +69,15 @@ class TeachingService:
         self.tours = TourService(repo)
         self.is_navigating = is_navigating
         self.on_change = on_change
+        self.observers: list[TeachingObserver] = []
+
+    def _tell(self, call: Callable[[TeachingObserver], None]) -> None:
+        """``call(observer)`` for every observer; an observer's error is logged, never raised."""
+        for observer in self.observers:
+            try:
+                call(observer)
+            except Exception:
+                log.exception("teaching observer %s failed", type(observer).__name__)
 
     # --- queries --------------------------------------------------------------------------
 
@@ -85,7 +126,8 @@ class TeachingService:
         if self.is_navigating(robot):
             raise Conflict(f"robot {robot!r} is navigating; stop it before teaching")
         with self.repo.transaction():
-            self.repo.tour(body.tour)  # 404 when unknown
+            # 404 when unknown or another household's
+            self.repo.tour(body.tour, self.repo.robot_household(robot))
             row = self.repo.teaching(robot)
             if row is not None:
                 raise Conflict(
@@ -93,17 +135,21 @@ class TeachingService:
                     "finish or abort that tour first"
                 )
             self.repo.start_teaching(robot, body.tour)
-            return self._state(self._teaching(robot, "start"))
+            state = self._state(self._teaching(robot, "start"))
+        self._tell(lambda o: o.teaching_started(robot, body.tour, record=body.record))
+        return state
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.FrameResult:
         """Append one frame to the open path."""
-        _, stored, pending = self._store(robot, data, meta, spin=False)
+        row, stored, pending = self._store(robot, data, meta, spin=False)
+        self._tell(lambda o: o.teaching_image(robot, row.tour_id, data, meta, spin=False))
         return schemas.FrameResult(mode="teaching", image=stored, open_path_images=pending)
 
     def spin_image(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.ImageStored:
         """Add one image taken while spinning at the current place."""
         row, stored, _ = self._store(robot, data, meta, spin=True)
         self.on_change(row.tour_id)
+        self._tell(lambda o: o.teaching_image(robot, row.tour_id, data, meta, spin=True))
         return stored
 
     def _store(
@@ -119,6 +165,8 @@ class TeachingService:
             row = self._teaching(robot, doing)
             self._ready_for_frames(row, robot)
             self._check_timestamp(row, meta.timestamp)
+            if spin:  # the spin images replace the path frame the mark gave the place
+                self.repo.drop_path_copies(row.current_location_id)  # type: ignore[arg-type]
             image_id = self.repo.add_image(
                 tour_id=row.tour_id,
                 jpeg=data,
@@ -129,6 +177,7 @@ class TeachingService:
                 w=meta.w,
                 location_id=row.current_location_id if spin else None,
                 pending_robot=None if spin else robot,
+                pose=None if meta.pose is None else (meta.pose[0], meta.pose[1], meta.pose[2]),
             )
             self.repo.set_teaching(
                 robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp
@@ -154,9 +203,9 @@ class TeachingService:
             closes_path = row.current_location_id is not None and (
                 pending > 0 or target != row.current_location_id
             )
-            if closes_path and pending < MIN_EDGE_IMAGES:
+            if closes_path and pending < MIN_EDGE_IMAGES:  # well-formed; the path is short
                 here = self.repo.location_name(row.current_location_id)  # type: ignore[arg-type]
-                raise Invalid(
+                raise Conflict(
                     f"an edge needs at least {MIN_EDGE_IMAGES} images, but only {pending} "
                     f"were uploaded since {here!r}; upload the frames of the path to "
                     f"{name!r} first, or abort"
@@ -166,6 +215,10 @@ class TeachingService:
                 target = self.repo.add_location(row.tour_id, name)
             edge_id: int | None = None
             if closes_path:
+                if not self._has_image(row.tour_id, target):
+                    # what the robot saw arriving; a mark on an empty path (the first one, or
+                    # the current place named again) has nothing to give
+                    self.repo.copy_last_pending_to_location(robot, target)
                 edge_id = self.repo.add_edge(row.tour_id, row.current_location_id, target)  # type: ignore[arg-type]
                 self.repo.move_pending_to_edge(robot, edge_id)
             self.repo.set_teaching(
@@ -184,7 +237,11 @@ class TeachingService:
                 teaching=self._state(self._teaching(robot, "mark a place")),
             )
         self.on_change(row.tour_id)
+        self._tell(lambda o: o.teaching_marked(robot, row.tour_id, result))
         return result
+
+    def _has_image(self, tour_id: int, location_id: int) -> bool:
+        return any(loc.image_ids for loc in self.repo.locations(tour_id) if loc.id == location_id)
 
     def finish(self, robot: str) -> schemas.TeachingEnded:
         with self.repo.transaction():
@@ -196,9 +253,22 @@ class TeachingService:
                     f"place where it ends (POST /robots/{robot}/teach/locations) or abort "
                     f"(POST /robots/{robot}/teach/abort) to discard them"
                 )
+            blind = [loc.name for loc in self.repo.locations(row.tour_id) if not loc.image_ids]
+            if blind:
+                at = row.current_location_id
+                here = "" if at is None else f": it is at {self.repo.location_name(at)!r} now"
+                raise Conflict(
+                    f"{_places(blind)} no image, so a robot could neither recognise nor be sent "
+                    f"there. Post a spin image (POST /robots/{robot}/teach/spin) while the "
+                    f"robot stands at the place{here}; to reach another, drive there with "
+                    "frames and mark it again (the path's last frame becomes its image). Or "
+                    f"abort teaching (POST /robots/{robot}/teach/abort) to end without them"
+                )
             self.repo.end_teaching(robot)
-            graph = self.tours.graph(row.tour_id)
-        return schemas.TeachingEnded(tour=graph, discarded_images=0)
+            graph = self.tours.graph(row.tour_id, None)
+        ended = schemas.TeachingEnded(tour=graph, discarded_images=0)
+        self._tell(lambda o: o.teaching_ended(robot, row.tour_id, ended, finished=True))
+        return ended
 
     def abort(self, robot: str) -> schemas.TeachingEnded:
         """End teaching, discarding the open path only; marked places and edges stay."""
@@ -206,5 +276,13 @@ class TeachingService:
             row = self._teaching(robot, "abort")
             discarded = self.repo.discard_pending(robot)
             self.repo.end_teaching(robot)
-            graph = self.tours.graph(row.tour_id)
-        return schemas.TeachingEnded(tour=graph, discarded_images=discarded)
+            graph = self.tours.graph(row.tour_id, None)
+        ended = schemas.TeachingEnded(tour=graph, discarded_images=discarded)
+        self._tell(lambda o: o.teaching_ended(robot, row.tour_id, ended, finished=False))
+        return ended
+
+
+def _places(names: list[str]) -> str:
+    """``place 'hall' has`` / ``places 'hall', 'attic' have``."""
+    quoted = ", ".join(repr(n) for n in names)
+    return f"place {quoted} has" if len(names) == 1 else f"places {quoted} have"

@@ -3,20 +3,38 @@
 from __future__ import annotations
 
 import sqlite3
-import threading
-import time
-from collections.abc import Callable
+from collections.abc import Sequence
 
 from server import schemas
-from server.errors import Conflict
+from server.errors import Conflict, NotFound
 from server.security import hash_token, new_token
-from server.storage.repo import EdgeRow, LocationRow, Repo
+from server.services.households import Identities
+from server.storage.repo import EdgeRow, LocationRow, Pose, Repo, RobotRow
 
 
 def location_public(loc: LocationRow) -> schemas.LocationPublic:
     return schemas.LocationPublic(
-        id=loc.id, name=loc.name, image_count=len(loc.image_ids), image_ids=list(loc.image_ids)
+        id=loc.id,
+        name=loc.name,
+        image_count=len(loc.image_ids),
+        image_ids=list(loc.image_ids),
+        poses=_poses(loc.poses),
+        entropy=_entropy(loc.entropy),
     )
+
+
+def _poses(poses: Sequence[Pose | None]) -> list[list[float]] | None:
+    """Every image's pose, or ``None`` unless every image has one."""
+    if not poses or any(p is None for p in poses):
+        return None
+    return [[round(v, 4) for v in p] for p in poses if p is not None]
+
+
+def _entropy(entropy: Sequence[float | None]) -> list[float] | None:
+    """Every image's entropy, or ``None`` unless every image has one."""
+    if not entropy or any(h is None for h in entropy):
+        return None
+    return [round(h, 4) for h in entropy if h is not None]
 
 
 def edge_public(edge: EdgeRow, names: dict[int, str]) -> schemas.EdgePublic:
@@ -31,29 +49,44 @@ def edge_public(edge: EdgeRow, names: dict[int, str]) -> schemas.EdgePublic:
         length_m=edge.length,
         first_image_id=edge.image_ids[0],
         last_image_id=edge.image_ids[-1],
+        poses=_poses(edge.poses),
+        entropy=_entropy(edge.entropy),
+    )
+
+
+def robot_public(row: RobotRow, household: str) -> schemas.RobotPublic:
+    return schemas.RobotPublic(
+        name=row.name,
+        created_at=row.created_at,
+        household=household,
+        token_active=row.token_active,
+        token_issued_at=row.token_issued_at,
     )
 
 
 class TourService:
+    """Tours of one household at a time: every call names the household that asks."""
+
     def __init__(self, repo: Repo) -> None:
         self.repo = repo
 
-    def create(self, body: schemas.TourCreate) -> schemas.TourSummary:
+    def create(self, body: schemas.TourCreate, household: int) -> schemas.TourSummary:
         with self.repo.transaction():
-            if self.repo.tour_by_name(body.name) is not None:
+            if self.repo.tour_by_name(body.name, household) is not None:
                 raise Conflict(f"a tour named {body.name!r} exists already; pick another name")
-            row = self.repo.add_tour(body.name)
+            row = self.repo.add_tour(body.name, household)
         return schemas.TourSummary(id=row.id, name=row.name, locations=0, edges=0, images=0)
 
-    def list(self) -> list[schemas.TourSummary]:
+    def list(self, household: int) -> list[schemas.TourSummary]:
         return [
             schemas.TourSummary(id=t.id, name=t.name, locations=nl, edges=ne, images=ni)
-            for t, nl, ne, ni in self.repo.tours()
+            for t, nl, ne, ni in self.repo.tours(household)
         ]
 
-    def graph(self, tour_id: int) -> schemas.TourGraphPublic:
+    def graph(self, tour_id: int, household: int | None) -> schemas.TourGraphPublic:
+        """The tour's graph; 404 when ``household`` (unless ``None``) does not own it."""
         with self.repo.snapshot():
-            tour = self.repo.tour(tour_id)
+            tour = self.repo.tour(tour_id, household)
             locations = self.repo.locations(tour_id)
             edges = self.repo.edges(tour_id)
         names = {loc.id: loc.name for loc in locations}
@@ -64,53 +97,56 @@ class TourService:
             edges=[edge_public(e, names) for e in edges],
         )
 
-
-TOKEN_CACHE_S = 60.0
-"""Seconds a token found in the database is remembered. Tokens are never reissued by the API;
-a robot row removed by hand stops authenticating within this time."""
+    def image_jpeg(self, image_id: int, household: int) -> bytes:
+        """The stored JPEG; 404 when it does not exist or another household owns it."""
+        if self.repo.image_household(image_id) != household:
+            raise NotFound(f"no image with id {image_id}")
+        return self.repo.image_jpeg(image_id)
 
 
 class RobotService:
-    def __init__(self, repo: Repo, *, clock: Callable[[], float] = time.monotonic) -> None:
+    """Registration and the token lifecycle (list, rotate, revoke) of robots."""
+
+    def __init__(self, repo: Repo, identities: Identities) -> None:
         self.repo = repo
-        self.clock = clock
-        self._tokens: dict[str, tuple[str, float]] = {}  # token hash -> (robot, found at)
-        self._tokens_lock = threading.Lock()
+        self.identities = identities
 
-    def cached_robot(self, token_hash: str) -> str | None:
-        """The robot of ``token_hash`` if it was found in the database within the last
-        :data:`TOKEN_CACHE_S` seconds (no I/O: safe on the event loop); else ``None``."""
-        with self._tokens_lock:
-            hit = self._tokens.get(token_hash)
-            if hit is None:
-                return None
-            if self.clock() - hit[1] > TOKEN_CACHE_S:
-                del self._tokens[token_hash]
-                return None
-            return hit[0]
-
-    def robot_for_token(self, token_hash: str) -> str | None:
-        """The robot whose token hashes to ``token_hash`` (database), or ``None``. Found ones
-        are remembered for :meth:`cached_robot`; unknown hashes are not (no memory for a
-        caller that tries random tokens)."""
-        robot = self.repo.robot_by_token_hash(token_hash)
-        if robot is not None:
-            with self._tokens_lock:
-                self._tokens[token_hash] = (robot, self.clock())
-        return robot
-
-    def register(self, body: schemas.RobotCreate) -> schemas.RobotRegistered:
+    def register(self, body: schemas.RobotCreate, household: int) -> schemas.RobotRegistered:
         token = new_token()
         try:
             with self.repo.transaction():
+                self.repo.household(household)  # 404 when unknown
                 if self.repo.robot_exists(body.name):
-                    raise Conflict(f"a robot named {body.name!r} is registered already")
-                self.repo.add_robot(body.name, hash_token(token))
+                    raise Conflict(
+                        f"a robot named {body.name!r} is registered already; pick another name"
+                    )
+                self.repo.add_robot(body.name, hash_token(token), household)
         except sqlite3.IntegrityError as exc:  # pragma: no cover - token hash collision
             raise Conflict("could not register the robot; retry") from exc
         return schemas.RobotRegistered(name=body.name, token=token)
 
-    def list(self) -> list[schemas.RobotPublic]:
-        return [
-            schemas.RobotPublic(name=r.name, created_at=r.created_at) for r in self.repo.robots()
-        ]
+    def list(self, household: int | None) -> list[schemas.RobotPublic]:
+        """The robots of ``household`` (every robot with ``None``: the admin), no secrets."""
+        with self.repo.snapshot():
+            names = {h.id: h.name for h in self.repo.households()}
+            rows = self.repo.robots(household)
+        return [robot_public(r, names[r.household_id]) for r in rows]
+
+    def rotate(self, robot: str) -> schemas.RobotRegistered:
+        """A new token for ``robot``; the old one fails from now on."""
+        token = new_token()
+        with self.repo.transaction():
+            self.repo.robot(robot)
+            self.repo.set_robot_token(robot, hash_token(token))
+        self.identities.forget_robot(robot)
+        return schemas.RobotRegistered(name=robot, token=token)
+
+    def revoke(self, robot: str) -> schemas.RobotPublic:
+        """The robot's token fails from now on (cached ones too), until it is rotated."""
+        with self.repo.transaction():
+            self.repo.robot(robot)
+            self.repo.set_robot_token(robot, None)
+            row = self.repo.robot(robot)
+            household = self.repo.household(row.household_id).name
+        self.identities.forget_robot(robot)
+        return robot_public(row, household)

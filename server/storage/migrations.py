@@ -12,16 +12,21 @@ from collections.abc import Callable
 import sqlite_utils
 
 Migration = Callable[[sqlite_utils.Database], None]
-MIGRATIONS: list[tuple[int, str, Migration]] = []
+MIGRATIONS: list[tuple[int, str, Migration, bool]] = []
 
 
-def migration(version: int) -> Callable[[Migration], Migration]:
-    """Register ``fn`` as the migration to schema ``version`` (strictly increasing)."""
+def migration(version: int, *, rebuilds: bool = False) -> Callable[[Migration], Migration]:
+    """Register ``fn`` as the migration to schema ``version`` (strictly increasing).
+
+    ``rebuilds``: the migration rebuilds tables that others reference (SQLite's way to change a
+    constraint: create the new table, copy, drop, rename). It then runs with foreign keys off,
+    as SQLite's documentation prescribes, so dropping the old table cascades nothing, and every
+    reference is checked (``PRAGMA foreign_key_check``) before it commits."""
 
     def register(fn: Migration) -> Migration:
         if MIGRATIONS and version <= MIGRATIONS[-1][0]:
             raise RuntimeError(f"migration {version} registered out of order")
-        MIGRATIONS.append((version, fn.__name__, fn))
+        MIGRATIONS.append((version, fn.__name__, fn, rebuilds))
         return fn
 
     return register
@@ -127,6 +132,97 @@ def navigation_tasks(db: sqlite_utils.Database) -> None:
     )
 
 
+@migration(3, rebuilds=True)
+def households(db: sqlite_utils.Database) -> None:
+    """Households own robots and tours (and, through the tours, every image, location, edge and
+    task). Everything that existed moves into household 1, ``default``, which has no password
+    until the admin sets one. Tour names become unique per household; a robot token can be
+    revoked (``token_hash`` NULL). Adds the household logins and the audit log."""
+    now = time.time()
+    db.execute(
+        """
+        CREATE TABLE households (
+            id INTEGER PRIMARY KEY,
+            name TEXT NOT NULL UNIQUE,
+            password_hash TEXT,                -- argon2id; NULL = no login yet
+            created_at REAL NOT NULL
+        )"""
+    )
+    db.execute(
+        "INSERT INTO households (id, name, password_hash, created_at) "
+        "VALUES (1, 'default', NULL, ?)",
+        (now,),
+    )
+    db.execute(
+        """
+        CREATE TABLE robots_new (
+            name TEXT PRIMARY KEY,
+            household_id INTEGER NOT NULL REFERENCES households(id),
+            token_hash TEXT UNIQUE,            -- sha256 of the bearer token, hex; NULL = revoked
+            token_issued_at REAL,
+            created_at REAL NOT NULL
+        )"""
+    )
+    db.execute(
+        "INSERT INTO robots_new (name, household_id, token_hash, token_issued_at, created_at) "
+        "SELECT name, 1, token_hash, created_at, created_at FROM robots"
+    )
+    db.execute("DROP TABLE robots")
+    db.execute("ALTER TABLE robots_new RENAME TO robots")
+    db.execute(
+        """
+        CREATE TABLE tours_new (
+            id INTEGER PRIMARY KEY,
+            household_id INTEGER NOT NULL REFERENCES households(id),
+            name TEXT NOT NULL,
+            created_at REAL NOT NULL,
+            weights BLOB,                      -- learned signature weights (engine), float32
+            weights_images INTEGER,            -- images the weights were learned from
+            UNIQUE (household_id, name)
+        )"""
+    )
+    db.execute(
+        "INSERT INTO tours_new (id, household_id, name, created_at, weights, weights_images) "
+        "SELECT id, 1, name, created_at, weights, weights_images FROM tours"
+    )
+    db.execute("DROP TABLE tours")
+    db.execute("ALTER TABLE tours_new RENAME TO tours")
+    db.execute(
+        """
+        CREATE TABLE logins (
+            token_hash TEXT PRIMARY KEY,       -- sha256 of the session token, hex
+            household_id INTEGER NOT NULL REFERENCES households(id) ON DELETE CASCADE,
+            created_at REAL NOT NULL,
+            expires_at REAL NOT NULL
+        )"""
+    )
+    db.execute(
+        """
+        CREATE TABLE audit (
+            id INTEGER PRIMARY KEY,
+            at REAL NOT NULL,                  -- unix time, s
+            actor TEXT NOT NULL,               -- admin, robot:<name>, household:<name>, ...
+            action TEXT NOT NULL,              -- e.g. "POST /robots/{robot}/goto"
+            target TEXT NOT NULL,              -- the path called (never a secret)
+            status INTEGER NOT NULL,
+            address TEXT
+        )"""
+    )
+    db.execute("CREATE INDEX audit_at ON audit(at)")
+
+
+@migration(4)
+def image_poses_and_distinctiveness(db: sqlite_utils.Database) -> None:
+    """Each image may carry the pose it was taken at (``pose_x``, ``pose_y`` metres,
+    ``pose_theta`` radians, in the teaching robot's odometry frame; NULL when the robot sent
+    none) and its distinctiveness (``entropy``: the entropy of its retrieval scores against the
+    whole tour, nats, seed 000; NULL until computed). ``tours.entropy_images`` is the number of
+    images the entropies were computed over. Columns are only added: nothing is lost."""
+    for column in ("pose_x", "pose_y", "pose_theta", "entropy"):
+        db.execute(f"ALTER TABLE images ADD COLUMN {column} REAL")
+    db.execute("ALTER TABLE tours ADD COLUMN entropy_images INTEGER")
+
+
 def current_version(db: sqlite_utils.Database) -> int:
     if "schema_migrations" not in db.table_names():
         return 0
@@ -134,20 +230,27 @@ def current_version(db: sqlite_utils.Database) -> int:
     return int(row[0] or 0)
 
 
-def migrate(db: sqlite_utils.Database) -> int:
-    """Bring ``db`` to the newest schema; returns the version it ends at."""
+def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
+    """Bring ``db`` to the newest schema (or to version ``upto``: tests build old databases
+    with it); returns the version it ends at."""
     conn = db.conn
     conn.execute(
         "CREATE TABLE IF NOT EXISTS schema_migrations "
         "(version INTEGER PRIMARY KEY, name TEXT NOT NULL, applied_at REAL NOT NULL)"
     )
     version = current_version(db)
-    for number, name, fn in MIGRATIONS:
-        if number <= version:
+    for number, name, fn, rebuilds in MIGRATIONS:
+        if number <= version or (upto is not None and number > upto):
             continue
+        keys_on = bool(conn.execute("PRAGMA foreign_keys").fetchone()[0])
+        if rebuilds:
+            conn.execute("PRAGMA foreign_keys = OFF")  # a no-op inside a transaction
         conn.execute("BEGIN IMMEDIATE")
         try:
             fn(db)
+            broken = conn.execute("PRAGMA foreign_key_check").fetchall() if rebuilds else []
+            if broken:
+                raise RuntimeError(f"migration {number} broke references: {broken[:5]}")
             conn.execute(
                 "INSERT INTO schema_migrations (version, name, applied_at) VALUES (?, ?, ?)",
                 (number, name, time.time()),
@@ -155,6 +258,10 @@ def migrate(db: sqlite_utils.Database) -> int:
         except BaseException:
             conn.execute("ROLLBACK")
             raise
-        conn.execute("COMMIT")
+        else:
+            conn.execute("COMMIT")
+        finally:
+            if rebuilds and keys_on:
+                conn.execute("PRAGMA foreign_keys = ON")
         version = number
     return version

@@ -22,12 +22,20 @@ from server.domain import Edge, Location, TourGraph
 from server.errors import NotFound, Unavailable
 from server.storage.migrations import migrate
 
+DEFAULT_HOUSEHOLD = 1
+"""The household that data from before households moved into (migration 3)."""
+
 
 @dataclass(frozen=True)
 class TourRow:
     id: int
     name: str
     created_at: float
+    household_id: int = DEFAULT_HOUSEHOLD
+
+
+Pose = tuple[float, float, float]
+"""``(x, y, theta)``: metres, metres, radians, in the teaching robot's odometry frame."""
 
 
 @dataclass(frozen=True)
@@ -36,6 +44,8 @@ class LocationRow:
     tour_id: int
     name: str
     image_ids: tuple[int, ...]
+    poses: tuple[Pose | None, ...] = ()  # aligned with image_ids (when read with them)
+    entropy: tuple[float | None, ...] = ()  # distinctiveness per image, nats
 
 
 @dataclass(frozen=True)
@@ -48,6 +58,8 @@ class EdgeRow:
     timestamps: tuple[float, ...]
     v: tuple[float, ...]
     w: tuple[float, ...]
+    poses: tuple[Pose | None, ...] = ()  # aligned with image_ids
+    entropy: tuple[float | None, ...] = ()  # distinctiveness per image, nats
 
     @property
     def duration(self) -> float:
@@ -73,6 +85,32 @@ class ImageMeta:
 class RobotRow:
     name: str
     created_at: float
+    household_id: int = DEFAULT_HOUSEHOLD
+    token_active: bool = True
+    token_issued_at: float | None = None
+
+
+@dataclass(frozen=True)
+class HouseholdRow:
+    id: int
+    name: str
+    created_at: float
+    password_hash: str | None
+
+    @property
+    def has_login(self) -> bool:
+        return self.password_hash is not None
+
+
+@dataclass(frozen=True)
+class AuditRow:
+    id: int
+    at: float
+    actor: str
+    action: str
+    target: str
+    status: int
+    address: str | None
 
 
 @dataclass(frozen=True)
@@ -190,61 +228,149 @@ class Repo:
     def integrity_ok(self) -> bool:
         return self._q("PRAGMA integrity_check")[0][0] == "ok"
 
+    # --- households -----------------------------------------------------------------------
+
+    def add_household(self, name: str, password_hash: str | None) -> HouseholdRow:
+        now = time.time()
+        hid = self._x(
+            "INSERT INTO households (name, password_hash, created_at) VALUES (?, ?, ?)",
+            (name, password_hash, now),
+        )
+        return HouseholdRow(hid, name, now, password_hash)
+
+    def household(self, household_id: int) -> HouseholdRow:
+        rows = self._q(_HOUSEHOLD_SQL + " WHERE id = ?", (household_id,))
+        if not rows:
+            raise NotFound(f"no household with id {household_id}; GET /households lists them")
+        return HouseholdRow(*rows[0])
+
+    def household_by_name(self, name: str) -> HouseholdRow | None:
+        rows = self._q(_HOUSEHOLD_SQL + " WHERE name = ?", (name,))
+        return HouseholdRow(*rows[0]) if rows else None
+
+    def households(self) -> list[HouseholdRow]:
+        return [HouseholdRow(*r) for r in self._q(_HOUSEHOLD_SQL + " ORDER BY id")]
+
+    def set_password_hash(self, household_id: int, password_hash: str) -> None:
+        self._x(
+            "UPDATE households SET password_hash = ? WHERE id = ?", (password_hash, household_id)
+        )
+
+    def any_login(self) -> bool:
+        """Whether some household has a password (someone can log in to the dashboard)."""
+        return bool(self._q("SELECT 1 FROM households WHERE password_hash IS NOT NULL LIMIT 1"))
+
+    # --- household logins (sessions) -------------------------------------------------------
+
+    def add_login(self, token_hash: str, household_id: int, expires_at: float) -> None:
+        self._x(
+            "INSERT INTO logins (token_hash, household_id, created_at, expires_at) "
+            "VALUES (?, ?, ?, ?)",
+            (token_hash, household_id, time.time(), expires_at),
+        )
+
+    def login(self, token_hash: str) -> tuple[int, str, float] | None:
+        """``(household id, household name, expires at)`` of a login token's hash, or ``None``."""
+        rows = self._q(
+            "SELECT l.household_id, h.name, l.expires_at FROM logins l "
+            "JOIN households h ON h.id = l.household_id WHERE l.token_hash = ?",
+            (token_hash,),
+        )
+        return (int(rows[0][0]), rows[0][1], float(rows[0][2])) if rows else None
+
+    def end_login(self, token_hash: str) -> None:
+        self._x("DELETE FROM logins WHERE token_hash = ?", (token_hash,))
+
     # --- robots ---------------------------------------------------------------------------
 
-    def add_robot(self, name: str, token_hash: str) -> RobotRow:
+    def add_robot(
+        self, name: str, token_hash: str, household_id: int = DEFAULT_HOUSEHOLD
+    ) -> RobotRow:
         now = time.time()
         self._x(
-            "INSERT INTO robots (name, token_hash, created_at) VALUES (?, ?, ?)",
-            (name, token_hash, now),
+            "INSERT INTO robots (name, household_id, token_hash, token_issued_at, created_at) "
+            "VALUES (?, ?, ?, ?, ?)",
+            (name, household_id, token_hash, now, now),
         )
-        return RobotRow(name, now)
+        return RobotRow(name, now, household_id, True, now)
 
     def robot(self, name: str) -> RobotRow:
-        rows = self._q("SELECT name, created_at FROM robots WHERE name = ?", (name,))
+        rows = self._q(_ROBOT_SQL + " WHERE name = ?", (name,))
         if not rows:
-            raise NotFound(f"no robot named {name!r}; register it with POST /robots (admin)")
-        return RobotRow(*rows[0])
+            raise NotFound(f"no robot named {name!r}; register it with POST /robots")
+        return _robot_row(rows[0])
 
     def robot_exists(self, name: str) -> bool:
         return bool(self._q("SELECT 1 FROM robots WHERE name = ?", (name,)))
 
-    def robot_by_token_hash(self, token_hash: str) -> str | None:
-        rows = self._q("SELECT name FROM robots WHERE token_hash = ?", (token_hash,))
-        return rows[0][0] if rows else None
+    def robot_household(self, name: str) -> int | None:
+        rows = self._q("SELECT household_id FROM robots WHERE name = ?", (name,))
+        return int(rows[0][0]) if rows else None
 
-    def robots(self) -> list[RobotRow]:
-        return [RobotRow(*r) for r in self._q("SELECT name, created_at FROM robots ORDER BY name")]
+    def robot_by_token_hash(self, token_hash: str) -> tuple[str, int, str] | None:
+        """``(robot name, household id, household name)`` of a live token's hash, or ``None``."""
+        rows = self._q(
+            "SELECT r.name, r.household_id, h.name FROM robots r "
+            "JOIN households h ON h.id = r.household_id WHERE r.token_hash = ?",
+            (token_hash,),
+        )
+        return (rows[0][0], int(rows[0][1]), rows[0][2]) if rows else None
+
+    def set_robot_token(self, name: str, token_hash: str | None) -> None:
+        """Replace (rotate) or, with ``None``, revoke the robot's token."""
+        self._x(
+            "UPDATE robots SET token_hash = ?, token_issued_at = ? WHERE name = ?",
+            (token_hash, None if token_hash is None else time.time(), name),
+        )
+
+    def robots(self, household_id: int | None = None) -> list[RobotRow]:
+        """The robots of one household, or of all with ``None``, by name."""
+        where, params = _owned_by(household_id)
+        return [_robot_row(r) for r in self._q(_ROBOT_SQL + where + " ORDER BY name", params)]
 
     # --- tours ----------------------------------------------------------------------------
 
-    def add_tour(self, name: str) -> TourRow:
+    def add_tour(self, name: str, household_id: int = DEFAULT_HOUSEHOLD) -> TourRow:
         now = time.time()
-        tid = self._x("INSERT INTO tours (name, created_at) VALUES (?, ?)", (name, now))
-        return TourRow(tid, name, now)
+        tid = self._x(
+            "INSERT INTO tours (name, household_id, created_at) VALUES (?, ?, ?)",
+            (name, household_id, now),
+        )
+        return TourRow(tid, name, now, household_id)
 
-    def tour(self, tour_id: int) -> TourRow:
-        rows = self._q("SELECT id, name, created_at FROM tours WHERE id = ?", (tour_id,))
-        if not rows:
+    def tour(self, tour_id: int, household_id: int | None = None) -> TourRow:
+        """The tour ``tour_id``; with ``household_id``, only when that household owns it (a
+        tour of another household is answered as one that does not exist)."""
+        rows = self._q(
+            "SELECT id, name, created_at, household_id FROM tours WHERE id = ?", (tour_id,)
+        )
+        if not rows or (household_id is not None and rows[0][3] != household_id):
             raise NotFound(f"no tour with id {tour_id}; GET /tours lists the tours")
         return TourRow(*rows[0])
 
-    def tour_by_name(self, name: str) -> TourRow | None:
-        rows = self._q("SELECT id, name, created_at FROM tours WHERE name = ?", (name,))
+    def tour_by_name(self, name: str, household_id: int = DEFAULT_HOUSEHOLD) -> TourRow | None:
+        rows = self._q(
+            "SELECT id, name, created_at, household_id FROM tours "
+            "WHERE name = ? AND household_id = ?",
+            (name, household_id),
+        )
         return TourRow(*rows[0]) if rows else None
 
-    def tours(self) -> list[tuple[TourRow, int, int, int]]:
-        """Every tour with its numbers of locations, edges and stored (non-pending) images."""
+    def tours(self, household_id: int | None = None) -> list[tuple[TourRow, int, int, int]]:
+        """The tours of one household (all with ``None``), each with its numbers of locations,
+        edges and stored (non-pending) images."""
+        where, params = _owned_by(household_id, "t.")
         rows = self._q(
-            """
-            SELECT t.id, t.name, t.created_at,
+            f"""
+            SELECT t.id, t.name, t.created_at, t.household_id,
                    (SELECT COUNT(*) FROM locations l WHERE l.tour_id = t.id),
                    (SELECT COUNT(*) FROM edges e WHERE e.tour_id = t.id),
                    (SELECT COUNT(*) FROM images i WHERE i.tour_id = t.id
                                                    AND i.pending_robot IS NULL)
-            FROM tours t ORDER BY t.id"""
+            FROM tours t{where} ORDER BY t.id""",
+            params,
         )
-        return [(TourRow(r[0], r[1], r[2]), r[3], r[4], r[5]) for r in rows]
+        return [(TourRow(r[0], r[1], r[2], r[3]), r[4], r[5], r[6]) for r in rows]
 
     def tour_counts(self, tour_id: int) -> tuple[int, int]:
         """Numbers of locations and of edges of one tour."""
@@ -268,19 +394,61 @@ class Repo:
                 (weights, n_images, tour_id),
             )
 
+    # --- audit ----------------------------------------------------------------------------
+
+    def add_audit(
+        self, *, actor: str, action: str, target: str, status: int, address: str | None
+    ) -> None:
+        with self.transaction():
+            self._x(
+                "INSERT INTO audit (at, actor, action, target, status, address) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (time.time(), actor, action, target, status, address),
+            )
+
+    def forget_before(self, audit_before: float, now: float) -> tuple[int, int]:
+        """Delete audit entries written before ``audit_before`` and logins expired by ``now``
+        (unix times, s); returns how many of each."""
+        with self.transaction(), self._lock, _guard():
+            audit = self.db.conn.execute("DELETE FROM audit WHERE at < ?", (audit_before,))
+            logins = self.db.conn.execute("DELETE FROM logins WHERE expires_at < ?", (now,))
+            return int(audit.rowcount), int(logins.rowcount)
+
+    def audit(self, *, limit: int = 100, before_id: int | None = None) -> list[AuditRow]:
+        """The newest ``limit`` audit rows (older than ``before_id`` when given), newest first."""
+        rows = self._q(
+            "SELECT id, at, actor, action, target, status, address FROM audit "
+            "WHERE id < ? ORDER BY id DESC LIMIT ?",
+            (before_id if before_id is not None else 2**63 - 1, limit),
+        )
+        return [AuditRow(*r) for r in rows]
+
     # --- locations and edges --------------------------------------------------------------
 
     def locations(self, tour_id: int) -> list[LocationRow]:
         locs = self._q("SELECT id, name FROM locations WHERE tour_id = ? ORDER BY id", (tour_id,))
         images = self._q(
-            "SELECT location_id, id FROM images WHERE tour_id = ? AND location_id IS NOT NULL "
-            "ORDER BY location_id, seq",
+            f"SELECT location_id, id, {_IMAGE_EXTRAS} FROM images "
+            "WHERE tour_id = ? AND location_id IS NOT NULL ORDER BY location_id, seq",
             (tour_id,),
         )
-        by_loc: dict[int, list[int]] = {}
-        for loc_id, image_id in images:
-            by_loc.setdefault(loc_id, []).append(image_id)
-        return [LocationRow(i, tour_id, n, tuple(by_loc.get(i, ()))) for i, n in locs]
+        by_loc: dict[int, list[tuple]] = {}
+        for loc_id, *rest in images:
+            by_loc.setdefault(loc_id, []).append(tuple(rest))
+        out = []
+        for i, n in locs:
+            rows = by_loc.get(i, [])
+            out.append(
+                LocationRow(
+                    i,
+                    tour_id,
+                    n,
+                    tuple(r[0] for r in rows),
+                    tuple(_pose(r[1:4]) for r in rows),
+                    tuple(r[4] for r in rows),
+                )
+            )
+        return out
 
     def location_by_name(self, tour_id: int, name: str) -> int | None:
         rows = self._q("SELECT id FROM locations WHERE tour_id = ? AND name = ?", (tour_id, name))
@@ -303,13 +471,13 @@ class Repo:
             "SELECT id, source_id, target_id FROM edges WHERE tour_id = ? ORDER BY id", (tour_id,)
         )
         images = self._q(
-            "SELECT edge_id, id, timestamp, v, w FROM images "
+            f"SELECT edge_id, id, timestamp, v, w, {_IMAGE_EXTRAS} FROM images "
             "WHERE tour_id = ? AND edge_id IS NOT NULL ORDER BY edge_id, seq",
             (tour_id,),
         )
-        by_edge: dict[int, list[tuple[int, float, float, float]]] = {}
-        for edge_id, image_id, ts, v, w in images:
-            by_edge.setdefault(edge_id, []).append((image_id, ts, v, w))
+        by_edge: dict[int, list[tuple]] = {}
+        for edge_id, *rest in images:
+            by_edge.setdefault(edge_id, []).append(tuple(rest))
         out = []
         for edge_id, src, dst in heads:
             rows = by_edge.get(edge_id, [])
@@ -323,6 +491,8 @@ class Repo:
                     tuple(r[1] for r in rows),
                     tuple(r[2] for r in rows),
                     tuple(r[3] for r in rows),
+                    tuple(_pose(r[4:7]) for r in rows),
+                    tuple(r[7] for r in rows),
                 )
             )
         return out
@@ -334,10 +504,20 @@ class Repo:
         )
 
     def graph(self, tour_id: int) -> TourGraph:
-        """The tour as the pure core sees it (locations and edges in id order)."""
+        """The tour as the pure core sees it (locations and edges in id order), with the
+        images' taught poses and distinctiveness where known."""
         locs = self.locations(tour_id)
+        edges = self.edges(tour_id)
         index = {loc.id: k for k, loc in enumerate(locs)}
+        poses = [p for loc in locs for p in loc.poses] + [p for e in edges for p in e.poses]
+        entropy = [h for loc in locs for h in loc.entropy] + [h for e in edges for h in e.entropy]
         return TourGraph(
+            image_pose=None
+            if all(p is None for p in poses)
+            else np.array([p if p is not None else (np.nan,) * 3 for p in poses]).reshape(-1, 3),
+            image_entropy=None
+            if all(h is None for h in entropy)
+            else np.array([np.nan if h is None else h for h in entropy], dtype=np.float64),
             locations=tuple(Location(loc.name, loc.image_ids, loc.id) for loc in locs),
             edges=tuple(
                 Edge(
@@ -349,9 +529,29 @@ class Repo:
                     w=np.asarray(e.w, dtype=np.float64),
                     id=e.id,
                 )
-                for e in self.edges(tour_id)
+                for e in edges
             ),
         )
+
+    def set_entropies(self, tour_id: int, items: Sequence[tuple[int, float]]) -> None:
+        """Store the distinctiveness (nats) of the tour's images, all at once: ``items`` is
+        ``(image id, entropy)`` for every image of the tour; the count is kept with the tour
+        (:meth:`entropy_images`)."""
+        with self.transaction(), self._lock, _guard():
+            self.db.conn.executemany(
+                "UPDATE images SET entropy = ? WHERE id = ? AND tour_id = ?",
+                [(float(h), int(i), tour_id) for i, h in items],
+            )
+            self.db.conn.execute(
+                "UPDATE tours SET entropy_images = ? WHERE id = ?", (len(items), tour_id)
+            )
+
+    def entropy_images(self, tour_id: int) -> int | None:
+        """How many images the stored entropies were computed over (``None``: never)."""
+        rows = self._q("SELECT entropy_images FROM tours WHERE id = ?", (tour_id,))
+        if not rows:
+            raise NotFound(f"no tour with id {tour_id}")
+        return None if rows[0][0] is None else int(rows[0][0])
 
     # --- images ---------------------------------------------------------------------------
 
@@ -367,8 +567,10 @@ class Repo:
         w: float,
         location_id: int | None = None,
         pending_robot: str | None = None,
+        pose: Pose | None = None,
     ) -> int:
-        """Store one image, owned by a location (spin image) or a robot's open path."""
+        """Store one image, owned by a location (spin image) or a robot's open path, with the
+        pose it was taken at when the robot sent one."""
         owner: str
         value: int | str | None
         if location_id is not None:
@@ -376,10 +578,11 @@ class Repo:
         else:
             owner, value = "pending_robot", pending_robot
         seq = self._q(f"SELECT COALESCE(MAX(seq), -1) + 1 FROM images WHERE {owner} = ?", (value,))
+        x, y, theta = pose if pose is not None else (None, None, None)
         return self._x(
-            f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            (tour_id, value, seq[0][0], timestamp, v, w, width, height, jpeg),
+            f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg, "
+            "pose_x, pose_y, pose_theta) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (tour_id, value, seq[0][0], timestamp, v, w, width, height, jpeg, x, y, theta),
         )
 
     def image_jpeg(self, image_id: int) -> bytes:
@@ -387,6 +590,14 @@ class Repo:
         if not rows:
             raise NotFound(f"no image with id {image_id}")
         return bytes(rows[0][0])
+
+    def image_household(self, image_id: int) -> int | None:
+        """The household that owns the image (through its tour), or ``None`` when unknown."""
+        rows = self._q(
+            "SELECT t.household_id FROM images i JOIN tours t ON t.id = i.tour_id WHERE i.id = ?",
+            (image_id,),
+        )
+        return int(rows[0][0]) if rows else None
 
     def image_meta(self, image_id: int) -> ImageMeta:
         rows = self._q(
@@ -417,6 +628,30 @@ class Repo:
     def discard_pending(self, robot: str) -> int:
         with self._lock, _guard():
             cur = self.db.conn.execute("DELETE FROM images WHERE pending_robot = ?", (robot,))
+            return int(cur.rowcount)
+
+    def copy_last_pending_to_location(self, robot: str, location_id: int) -> int | None:
+        """Give ``location_id`` a copy of the last image of the robot's open path, marked as
+        taken from the path by ``seq`` -1 (:meth:`drop_path_copies` removes it when a spin
+        image arrives). Returns the copy's id; ``None`` when the open path is empty."""
+        last = self._q(
+            "SELECT id FROM images WHERE pending_robot = ? ORDER BY seq DESC LIMIT 1", (robot,)
+        )
+        if not last:
+            return None
+        return self._x(
+            "INSERT INTO images (tour_id, location_id, seq, timestamp, v, w, width, height, "
+            "jpeg, features, pose_x, pose_y, pose_theta) SELECT tour_id, ?, -1, timestamp, v, "
+            "w, width, height, jpeg, features, pose_x, pose_y, pose_theta FROM images WHERE id = ?",
+            (location_id, last[0][0]),
+        )
+
+    def drop_path_copies(self, location_id: int) -> int:
+        """Remove the images :meth:`copy_last_pending_to_location` gave ``location_id``."""
+        with self._lock, _guard():
+            cur = self.db.conn.execute(
+                "DELETE FROM images WHERE location_id = ? AND seq < 0", (location_id,)
+            )
             return int(cur.rowcount)
 
     def features(self, image_ids: Sequence[int]) -> dict[int, bytes | None]:
@@ -523,6 +758,34 @@ class Repo:
             "GROUP BY e.id HAVING COUNT(i.id) < 2"
         )
         return [r[0] for r in rows]
+
+
+_IMAGE_EXTRAS = "pose_x, pose_y, pose_theta, entropy"
+"""The per-image columns of migration 4, in this order."""
+
+
+def _pose(row: Sequence[float | None]) -> Pose | None:
+    """``(x, y, theta)`` from the three pose columns, ``None`` unless all three are set."""
+    if any(v is None for v in row):
+        return None
+    return (float(row[0]), float(row[1]), float(row[2]))  # type: ignore[arg-type]
+
+
+_HOUSEHOLD_SQL = "SELECT id, name, created_at, password_hash FROM households"
+_ROBOT_SQL = (
+    "SELECT name, created_at, household_id, token_hash IS NOT NULL, token_issued_at FROM robots"
+)
+
+
+def _robot_row(r: tuple) -> RobotRow:
+    return RobotRow(r[0], r[1], int(r[2]), bool(r[3]), r[4])
+
+
+def _owned_by(household_id: int | None, prefix: str = "") -> tuple[str, tuple[object, ...]]:
+    """A WHERE clause restricting rows to one household (nothing with ``None``)."""
+    if household_id is None:
+        return "", ()
+    return f" WHERE {prefix}household_id = ?", (household_id,)
 
 
 @contextmanager

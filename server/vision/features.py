@@ -30,10 +30,24 @@ Steps of :func:`extract`:
      128-value descriptors. OpenCV computes each as a unit vector times 512, saturated to
      [0, 255] and rounded, so storing it as ``uint8`` loses nothing (``CV_8U`` gives the same
      bytes). Euclidean distance of the vectors divided by 512 (unit norm).
+   * ``"akaze"``: OpenCV's AKAZE as it comes: its own keypoints (Hessian extrema in a
+     nonlinear scale space, 4 octaves, response threshold 0.001), oriented 61-byte MLDB binary
+     descriptor. Hamming. It has no keypoint budget: an image may give fewer than
+     ``n_features``.
+   * ``"akaze_upright"``: the same keypoints with OpenCV's upright MLDB descriptor (no
+     orientation: the robot's camera does not roll).
+   * ``"brisk"``: OpenCV's BRISK as it comes: its own keypoints (AGAST corners over scale
+     octaves), oriented 64-byte binary descriptor. Hamming.
+   * ``"teblid"``: the 32-byte (256-bit) TEBLID descriptor (Suárez et al., RA-L 2021: boxes of
+     average grey levels compared pairwise, learned with triplet loss) at the same Harris
+     corners as ``grad36``, upright (keypoint size 31 px, scale factor 1 as for ORB
+     keypoints). Hamming.
 
-   AKAZE, KAZE and BRISK moved to opencv_contrib in OpenCV 5 and are not in
-   opencv-python-headless. The benchmarks (``teachrepeat bench retrieval`` and ``teachrepeat
-   bench features``, docs/retrieval.md) chose the default.
+   AKAZE, BRISK and TEBLID come from opencv_contrib (``cv2.xfeatures2d`` in OpenCV 5, in
+   ``cv2`` for AKAZE and BRISK in 4.x): the project depends on
+   ``opencv-contrib-python-headless``, never beside ``opencv-python-headless``. The benchmarks
+   (``teachrepeat bench retrieval`` and ``teachrepeat bench features``, docs/retrieval.md)
+   chose the default.
 3. **Global signature**: the concatenation of unit-L2-norm blocks (see :func:`signature_blocks`):
 
    * ``hist``: YCbCr histogram, 64 bins per channel, square-rooted (Hellinger), stored as its
@@ -42,7 +56,7 @@ Steps of :func:`extract`:
      makes the first pass read 4x fewer bytes, at a measured cost in recall);
    * ``thumb``: 8x6x3 colour thumbnail, mean removed (brightness invariant), 144 values;
    * ``desc_mean``, ``desc_var``: mean and variance of the descriptor values (D + D values: the
-     bytes of grad36 and SIFT; the per-byte bit counts of the binary ORB kinds);
+     bytes of grad36 and SIFT; the per-byte bit counts of the binary kinds);
    * ``patch``: a patch-normalised grey thumbnail (16x12; each pixel minus the mean over a local
      window, divided by its standard deviation, as in SeqSLAM), 192 values. Beyond the paper:
      it carries most of the weight on low-texture and low-resolution images.
@@ -55,23 +69,37 @@ from __future__ import annotations
 
 import functools
 import struct
+import threading
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-DescriptorKind = Literal["grad36", "orb", "orb_fast", "sift"]
+DescriptorKind = Literal[
+    "grad36", "orb", "orb_fast", "sift", "akaze", "akaze_upright", "brisk", "teblid"
+]
 #: Every descriptor option. The blob (:meth:`ImageFeatures.to_bytes`) stores the position in
 #: this tuple: new kinds are appended, never inserted.
-DESCRIPTOR_KINDS: tuple[DescriptorKind, ...] = ("grad36", "orb", "orb_fast", "sift")
+DESCRIPTOR_KINDS: tuple[DescriptorKind, ...] = get_args(DescriptorKind)
 #: Bytes per descriptor (D) of each kind.
-DESCRIPTOR_BYTES: dict[str, int] = {"grad36": 36, "orb": 32, "orb_fast": 32, "sift": 128}
+DESCRIPTOR_BYTES: dict[str, int] = {
+    "grad36": 36,
+    "orb": 32,
+    "orb_fast": 32,
+    "sift": 128,
+    "akaze": 61,
+    "akaze_upright": 61,
+    "brisk": 64,
+    "teblid": 32,
+}
 #: Kinds compared by Hamming distance; the others are vectors compared by Euclidean distance.
-BINARY_DESCRIPTORS: frozenset[str] = frozenset({"orb", "orb_fast"})
+BINARY_DESCRIPTORS: frozenset[str] = frozenset(
+    {"orb", "orb_fast", "akaze", "akaze_upright", "brisk", "teblid"}
+)
 #: Kinds at Harris corners (:func:`detect_corners`); the others bring their own detector.
-HARRIS_DESCRIPTORS: frozenset[str] = frozenset({"grad36", "orb"})
+HARRIS_DESCRIPTORS: frozenset[str] = frozenset({"grad36", "orb", "teblid"})
 #: Nominal L2 norm of an OpenCV SIFT descriptor in byte units.
 SIFT_NORM = 512.0
 
@@ -98,13 +126,15 @@ class FeatureParams:
         descriptor: one of :data:`DESCRIPTOR_KINDS`: ``"grad36"`` (36-byte gradient descriptor
             at Harris corners), ``"orb"`` (32-byte upright ORB at Harris corners),
             ``"orb_fast"`` (OpenCV ORB: FAST keypoints, oriented 32-byte descriptor),
-            ``"sift"`` (OpenCV SIFT: 128 bytes). See the module docstring.
+            ``"sift"`` (OpenCV SIFT: 128 bytes), ``"akaze"`` (OpenCV AKAZE: 61-byte MLDB),
+            ``"akaze_upright"`` (the same, upright), ``"brisk"`` (OpenCV BRISK: 64 bytes),
+            ``"teblid"`` (32-byte TEBLID at Harris corners). See the module docstring.
         harris_k: Harris detector free parameter (Harris kinds only, as the next four).
         harris_block: neighbourhood size of the Harris structure tensor (px).
         quality: minimum corner response relative to the strongest one in the image.
         min_distance: minimum distance between two kept corners (px).
         border: corners closer than this to the image border are dropped (px); must leave room
-            for the descriptor patch (grad36: 1.5 * cell + 2; ORB: 16).
+            for the descriptor patch (grad36: 1.5 * cell + 2; ORB and TEBLID: 16).
         cell: side of one of the 3x3 grad36 cells (px).
         blur_sigma: Gaussian blur before the grad36 gradients (px).
         clip: grad36 per-component clip after L2 normalisation (as in SIFT).
@@ -230,7 +260,8 @@ class ImageFeatures:
         keypoints: ``(K, 2) float32`` corner (x, y) in pixels at the working size, strongest
             first; ``K <= n_features`` (0 for a blank image).
         descriptors: ``(K, D) uint8``, row k describes keypoint k (D from
-            :data:`DESCRIPTOR_BYTES`: 36 grad36, 32 ORB kinds, 128 SIFT).
+            :data:`DESCRIPTOR_BYTES`: 36 grad36, 32 ORB kinds and TEBLID, 128 SIFT, 61 AKAZE,
+            64 BRISK).
         signature: ``(S,) float32`` global signature, unit-norm blocks (:func:`signature_blocks`).
         descriptor: which descriptor produced ``descriptors``.
         size: working size ``(width, height)`` in pixels the keypoints refer to.
@@ -405,8 +436,8 @@ def detect_corners(
 ) -> npt.NDArray[np.float32]:
     """Harris corners of a working-size grey image, strongest first: ``(K, 2) float32`` (x, y).
 
-    The detector of the Harris kinds (:data:`HARRIS_DESCRIPTORS`); ``orb`` keeps 16 px from the
-    border for its 31 px patch."""
+    The detector of the Harris kinds (:data:`HARRIS_DESCRIPTORS`); ``orb`` and ``teblid`` keep
+    16 px from the border for their 31 px patch."""
     border = params.border if params.descriptor == "grad36" else max(params.border, 16)
     corners = cv2.goodFeaturesToTrack(
         grey,
@@ -488,47 +519,99 @@ def _cell_sums(cell: int) -> npt.NDArray[np.float32]:
     return m
 
 
-_ORB = None
+def _contrib(name: str) -> Any:
+    """The OpenCV class ``name`` (``AKAZE``, ``BRISK``, ``TEBLID``): in ``cv2.xfeatures2d``
+    (OpenCV 5 with contrib) or in ``cv2`` (4.x); a helpful error without the contrib build."""
+    for module in (getattr(cv2, "xfeatures2d", None), cv2):
+        cls = getattr(module, name, None)
+        if cls is not None and hasattr(cls, "create"):
+            return cls
+    raise RuntimeError(
+        f"OpenCV {cv2.__version__} has no {name}: install opencv-contrib-python-headless "
+        "(pip uninstall opencv-python-headless first: the two must not be installed together)"
+    )
+
+
+# Feature2D objects that are dear to create (BRISK builds its sampling pattern: ~20 ms), one
+# per thread so that concurrent extractions share no state
+_CACHED = threading.local()
+
+
+def _feature2d(kind: DescriptorKind, n_features: int) -> cv2.Feature2D:
+    """The OpenCV object that detects and / or describes ``kind`` (not ``grad36``)."""
+    if kind == "orb":  # descriptor only, at Harris corners (16 px from the border)
+        return cv2.ORB.create(edgeThreshold=16, patchSize=31)
+    if kind == "orb_fast":
+        return cv2.ORB.create(nfeatures=n_features)
+    if kind == "sift":
+        return cv2.SIFT.create(nfeatures=n_features)
+    if kind == "akaze":
+        return _contrib("AKAZE").create()
+    if kind == "akaze_upright":
+        akaze = _contrib("AKAZE")
+        upright = getattr(getattr(cv2, "xfeatures2d", cv2), "AKAZE_DESCRIPTOR_MLDB_UPRIGHT", 4)
+        return akaze.create(descriptor_type=upright)
+    if kind == "teblid":  # 256 bits; scale factor 1 for keypoints of size 31 (as ORB's)
+        teblid = _contrib("TEBLID")
+        bits = getattr(getattr(cv2, "xfeatures2d", cv2), "TEBLID_SIZE_256_BITS", 102)
+        return teblid.create(1.0, bits)
+    if kind == "brisk":
+        cached: cv2.Feature2D | None = getattr(_CACHED, "brisk", None)
+        if cached is None:
+            cached = _contrib("BRISK").create()
+            _CACHED.brisk = cached
+        return cached
+    raise ValueError(f"{kind!r} is computed by this module, not by an OpenCV Feature2D")
+
+
+def harris_descriptors(
+    grey: npt.NDArray[np.uint8],
+    keypoints: npt.NDArray[np.float32],
+    kind: DescriptorKind = "orb",
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """An OpenCV binary descriptor (``orb``: upright ORB/rBRIEF; ``teblid``: upright 256-bit
+    TEBLID) at the given Harris corners of a working-size grey image, each described as a
+    31 px keypoint at angle 0.
+
+    Returns the corners kept (OpenCV may drop those too close to the border), ``(K, 2)
+    float32`` (x, y) px, and their descriptors ``(K, D) uint8``.
+    """
+    d = DESCRIPTOR_BYTES[kind]
+    if len(keypoints) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros((0, d), np.uint8)
+    kps = [cv2.KeyPoint(float(x), float(y), 31.0) for x, y in keypoints]
+    kept, desc = _feature2d(kind, len(kps)).compute(grey, kps)
+    if desc is None or len(kept) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros((0, d), np.uint8)
+    pts = np.array([kp.pt for kp in kept], np.float32).reshape(-1, 2)
+    return pts, np.ascontiguousarray(desc, dtype=np.uint8).reshape(-1, d)
 
 
 def orb_descriptors(
     grey: npt.NDArray[np.uint8], keypoints: npt.NDArray[np.float32]
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
-    """Upright ORB (rBRIEF pattern, no orientation) at the given corners.
-
-    Returns the corners ORB kept (it drops those too close to the border) and ``(K, 32) uint8``.
-    """
-    global _ORB
-    if len(keypoints) == 0:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
-    if _ORB is None:
-        _ORB = cv2.ORB.create(edgeThreshold=16, patchSize=31)
-    kps = [cv2.KeyPoint(float(x), float(y), 31.0) for x, y in keypoints]
-    kept, desc = _ORB.compute(grey, kps)
-    if desc is None or len(kept) == 0:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8)
-    pts = np.array([kp.pt for kp in kept], np.float32).reshape(-1, 2)
-    return pts, np.ascontiguousarray(desc, dtype=np.uint8)
+    """Upright ORB (rBRIEF pattern, no orientation) at the given corners:
+    :func:`harris_descriptors` with ``kind="orb"``; ``(K, 32) uint8``."""
+    return harris_descriptors(grey, keypoints, "orb")
 
 
 def opencv_features(
     grey: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
     """Keypoints and descriptors of the kinds with their own OpenCV detector (``orb_fast``,
-    ``sift``) on a working-size grey image.
+    ``sift``, ``akaze``, ``akaze_upright``, ``brisk``) on a working-size grey image.
 
     Returns ``(K, 2) float32`` (x, y) in pixels at the working size and ``(K, D) uint8``,
     strongest detector response first, ``K <= params.n_features`` (SIFT may return a keypoint
-    twice with two orientations; each counts). A detector object is created per call (well
-    under a microsecond), so concurrent calls share no state.
+    twice with two orientations; each counts). AKAZE and BRISK have no keypoint budget of
+    their own: they detect all they find and the strongest are kept. Detector objects are
+    created per call (well under a microsecond), BRISK's once per thread, so concurrent calls
+    share no state.
     """
     d = params.descriptor_bytes
-    if params.descriptor == "orb_fast":
-        detector: cv2.Feature2D = cv2.ORB.create(nfeatures=params.n_features)
-    elif params.descriptor == "sift":
-        detector = cv2.SIFT.create(nfeatures=params.n_features)
-    else:
+    if params.descriptor in HARRIS_DESCRIPTORS:
         raise ValueError(f"{params.descriptor!r} uses Harris corners: call detect_corners")
+    detector = _feature2d(params.descriptor, params.n_features)
     kps, desc = detector.detectAndCompute(grey, None)
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2), np.float32), np.zeros((0, d), np.uint8)
@@ -639,7 +722,7 @@ def _corners_and_descriptors(
     corners = detect_corners(grey, params)
     if params.descriptor == "grad36":
         return corners, grad36_descriptors(grey, corners, params)
-    return orb_descriptors(grey, corners)
+    return harris_descriptors(grey, corners, params.descriptor)
 
 
 def descriptor_distances(

@@ -104,3 +104,59 @@ def test_dashboard_shows_a_navigating_robot_and_sends_it_somewhere(
     # a guard against a hang, not a speed target (speed lives in `bench dashboard`): the run
     # took 60.5 s on 2026-11-24 on this 2-core VM, over the 60 s bound it had before
     assert time.monotonic() - started < 300
+
+
+def test_off_loopback_the_dashboard_asks_for_a_login_and_shows_only_that_household(
+    tmp_path: Path,
+) -> None:
+    """The gate forced on (on 127.0.0.1 it stands for any other address): the login page, a
+    wrong password refused, the right one showing household A's robot and tour and never B's,
+    and logging out back to the login page."""
+    from server import schemas
+    from web.gate import Gate
+
+    executable = chromium()
+    live = start_live_server(tmp_path / "login.sqlite", dashboard=False)
+    gate = Gate(live.services)
+    try:
+        for name in ("alpha", "beta"):
+            household = live.services.households.create(
+                schemas.HouseholdCreate(name=name, password=f"{name}-password-1")
+            )
+            robot = schemas.RobotCreate(name=f"{name}-rover")
+            live.services.robots.register(robot, household.id)
+            live.services.tours.create(schemas.TourCreate(name=f"{name}-tour"), household.id)
+        port = gate.start("127.0.0.1", 0)
+        with headless_browser(f"http://127.0.0.1:{port}/", executable=executable) as page:
+            assert page.url.endswith("/login")
+            page.get_by_label("Household").fill("alpha")
+            page.get_by_label("Password").fill("beta-password-1")  # another household's
+            page.get_by_role("button", name="Log in").click()
+            page.get_by_role("alert").wait_for()
+            assert page.get_by_role("alert").inner_text() == "wrong household or password"
+            assert page.url.endswith("/login")
+
+            page.get_by_label("Password").fill("alpha-password-1")
+            page.get_by_role("button", name="Log in").click()
+            page.get_by_text("alpha-rover is idle").first.wait_for(timeout=30_000)
+            body = " ".join(page.locator("body").inner_text().split())
+            assert "Household alpha" in body and "tour alpha-tour" in body, body[:2000]
+            page.get_by_role("combobox", name="Robot").click()
+            options = page.get_by_role("option").all_inner_texts()
+            assert options == ["alpha-rover"], options
+            page.keyboard.press("Escape")
+            page.get_by_role("combobox", name="Tour").click()
+            options = page.get_by_role("option").all_inner_texts()
+            assert [o.split(" (#")[0] for o in options] == ["alpha-tour"], options
+            page.keyboard.press("Escape")
+            assert "beta" not in " ".join(page.locator("body").inner_text().split())
+
+            page.get_by_role("link", name="Log out").click()
+            page.get_by_role("button", name="Log out").click()
+            page.get_by_role("button", name="Log in").wait_for()
+            assert page.url.endswith("/login")
+            page.goto(f"http://127.0.0.1:{port}/")  # the login ended: back to the form
+            assert page.url.endswith("/login")
+    finally:
+        gate.stop()
+        live.stop()

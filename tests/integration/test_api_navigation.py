@@ -94,6 +94,46 @@ def test_goto_unknown_place_is_404(taught: tuple[Api, dict[str, str], int]) -> N
     assert api.dump() == before
 
 
+def test_goto_a_place_without_an_image_is_409_and_says_how_to_give_it_one(
+    taught: tuple[Api, dict[str, str], int], shared_data: Path
+) -> None:
+    api, robot, tour_id = taught
+    teach = "/robots/rover/teach"
+    api.client.post(f"{teach}/start", json={"tour": tour_id}, headers=robot)
+    api.client.post(f"{teach}/locations", json={"name": "attic"}, headers=robot)
+    assert api.client.post(f"{teach}/abort", headers=robot).status_code == 200  # no image
+    before = api.dump()
+    r = api.client.post("/robots/rover/goto", json={"location": "attic"}, headers=robot)
+    assert r.status_code == 409, r.text
+    detail = r.json()["detail"]
+    for words in ("'attic'", "no image", f"{teach}/start", f"{teach}/locations", f"{teach}/spin"):
+        assert words in detail, detail
+    assert api.dump() == before
+    # what the message says works
+    api.client.post(f"{teach}/start", json={"tour": tour_id}, headers=robot)
+    api.client.post(f"{teach}/locations", json={"name": "attic"}, headers=robot)
+    image = (shared_data / "corridor" / "query" / "0000000.jpg").read_bytes()
+    r = api.client.post(
+        f"{teach}/spin", params={"timestamp": 1e3}, content=image, headers={**robot, **JPEG}
+    )
+    assert r.status_code == 200, r.text
+    assert api.client.post(f"{teach}/finish", headers=robot).status_code == 200
+    r = api.client.post("/robots/rover/goto", json={"location": "attic"}, headers=robot)
+    assert r.status_code == 200, r.text
+
+
+def test_goto_without_a_tour_when_the_robot_has_none_is_409(api: Api) -> None:
+    """Well-formed (the schema makes ``tour`` optional), but the robot has no tour of its own
+    and there is more than one: a conflict with the state, not invalid input."""
+    robot = api.register()
+    for name in ("home", "office"):
+        api.client.post("/tours", json={"name": name}, headers=robot)
+    before = api.dump()
+    r = api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    assert r.status_code == 409 and "pass 'tour'" in r.json()["detail"], r.text
+    assert api.dump() == before
+
+
 def test_goto_unknown_tour_is_404(taught: tuple[Api, dict[str, str], int]) -> None:
     api, robot, _ = taught
     r = api.client.post(

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
 from typing import Any
 
 import pytest
 from conftest import Api, make_jpeg
+from fastapi.testclient import TestClient
+from pydantic import SecretStr
 
 JPEG = {"Content-Type": "image/jpeg"}
 
@@ -72,19 +76,47 @@ def test_teach_a_small_tour(api: Api) -> None:
     graph = api.client.get(f"/tours/{tour_id}", headers=robot).json()
     assert [(loc["name"], loc["image_count"]) for loc in graph["locations"]] == [
         ("kitchen", 1),
-        ("office", 0),
+        ("office", 1),  # no spin image there: the last frame of the path to it
     ]
+    office_image = graph["locations"][1]["image_ids"][0]
+    assert api.client.get(f"/images/{office_image}", headers=robot).content == make_jpeg(4)
     assert [(e["source_name"], e["target_name"], e["image_count"]) for e in graph["edges"]] == [
         ("kitchen", "office", 5),
         ("office", "kitchen", 3),
     ]
     listed = api.client.get("/tours", headers=robot).json()
-    assert listed == [{"id": tour_id, "name": "home", "locations": 2, "edges": 2, "images": 9}]
+    assert listed == [{"id": tour_id, "name": "home", "locations": 2, "edges": 2, "images": 10}]
     image_id = graph["edges"][0]["first_image_id"]
     image = api.client.get(f"/images/{image_id}", headers=robot)
     assert image.status_code == 200 and image.headers["content-type"] == "image/jpeg"
     assert image.content == make_jpeg(0)
     assert api.client.get("/robots/rover/state", headers=robot).json()["mode"] == "idle"
+
+
+def test_taught_images_keep_the_poses_the_robot_sent(api: Api) -> None:
+    """``pose=x&pose=y&pose=theta`` comes back in ``GET /tours/{id}``, per image in order; a
+    place or edge with an image without a pose has none; a pose of two values is 422."""
+    robot = api.register()
+    tour_id = start_teaching(api, robot)
+    mark(api, robot, "kitchen")
+    send = dict(headers={**robot, **JPEG}, content=make_jpeg(0))
+    params: dict[str, object] = {"timestamp": 0.0, "pose": [0.5, -1.0, 3.0]}
+    assert api.client.post("/robots/rover/teach/spin", params=params, **send).status_code == 200
+    for k in range(3):
+        params = {"timestamp": 1.0 + k, "v": 0.3, "pose": [0.5 + 0.3 * k, -1.0, 0.0]}
+        assert api.client.post("/robots/rover/frames", params=params, **send).status_code == 200
+    mark(api, robot, "office")  # gets a copy of the last frame, pose and all
+    frame(api, robot, 5.0)  # no pose
+    frame(api, robot, 6.0)
+    mark(api, robot, "kitchen")
+    bad = api.client.post("/robots/rover/frames", params={"timestamp": 7, "pose": [1, 2]}, **send)
+    assert_refused(api, bad, 422, "pose")
+    assert api.client.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+    graph = api.client.get(f"/tours/{tour_id}", headers=robot).json()
+    assert [loc["poses"] for loc in graph["locations"]] == [[[0.5, -1.0, 3.0]], [[1.1, -1.0, 0.0]]]
+    assert graph["edges"][0]["poses"] == [[0.5, -1.0, 0.0], [0.8, -1.0, 0.0], [1.1, -1.0, 0.0]]
+    assert graph["edges"][1]["poses"] is None
+    assert all(e["entropy"] is None for e in graph["edges"])  # not computed yet
 
 
 def test_abort_discards_only_the_open_path(api: Api) -> None:
@@ -100,7 +132,7 @@ def test_abort_discards_only_the_open_path(api: Api) -> None:
     assert r.status_code == 200 and r.json()["discarded_images"] == 4
     graph = api.client.get(f"/tours/{tour_id}", headers=robot).json()
     assert len(graph["locations"]) == 2 and len(graph["edges"]) == 1
-    assert api.client.get("/tours", headers=robot).json()[0]["images"] == 3
+    assert api.client.get("/tours", headers=robot).json()[0]["images"] == 4  # 3 + b's image
 
 
 def test_admin_registers_and_lists_robots(api: Api) -> None:
@@ -108,7 +140,11 @@ def test_admin_registers_and_lists_robots(api: Api) -> None:
     api.register("mop-2")
     r = api.client.get("/robots", headers=api.admin)
     assert [x["name"] for x in r.json()] == ["mop-2", "rover"]
-    assert api.client.get("/whoami", headers=api.admin).json() == {"kind": "admin", "robot": None}
+    assert api.client.get("/whoami", headers=api.admin).json() == {
+        "kind": "admin",
+        "robot": None,
+        "household": None,
+    }
 
 
 def test_openapi_documents_every_route(api: Api) -> None:
@@ -130,6 +166,110 @@ def test_openapi_documents_every_route(api: Api) -> None:
     assert api.client.get("/docs").status_code == 200
 
 
+def test_docs_work_without_internet(api: Api) -> None:
+    """/docs loads Swagger UI from files the server holds, never from a CDN."""
+    import re
+
+    r = api.client.get("/docs")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    assert not re.search(r"https?://", r.text), r.text
+    assets = re.findall(r'(?:src|href)="([^"]+)"', r.text)
+    assert {a.rsplit("/", 1)[-1] for a in assets} == {
+        "swagger-ui-bundle.js",
+        "swagger-ui.css",
+        "favicon.png",
+    }
+    for url in assets:
+        asset = api.client.get(url)
+        assert asset.status_code == 200 and len(asset.content) > 1000, url
+    # Swagger UI 5 renders OpenAPI 3.1 (the 4.x of swagger-ui-bundle refuses anything but 3.0)
+    bundle = api.client.get(next(a for a in assets if a.endswith(".js"))).text
+    assert "isOAS31" in bundle
+    assert api.client.get("/openapi.json").json()["openapi"].startswith("3.1")
+
+
+def test_the_root_points_to_the_docs_and_the_dashboard(api: Api, tmp_path: Path) -> None:
+    r = api.client.get("/")
+    assert r.status_code == 200
+    assert r.json() == {
+        "name": "teachrepeat",
+        "version": "0.1.0",
+        "docs": "/docs",
+        "openapi": "/openapi.json",
+        "dashboard": None,  # the fixture runs without a dashboard
+    }
+    from server.app import create_app
+    from server.config import Settings
+
+    settings = Settings(db=tmp_path / "d.sqlite", admin_token=SecretStr("x"), dashboard_port=8080)
+    with TestClient(create_app(settings), base_url="http://robot-server.local:8000") as client:
+        assert client.get("/").json()["dashboard"] == "http://robot-server.local:8080"
+
+
+def place_images(api: Api, robot: dict[str, str], tour_id: int) -> dict[str, list[bytes]]:
+    graph = api.client.get(f"/tours/{tour_id}", headers=robot).json()
+    return {
+        loc["name"]: [
+            api.client.get(f"/images/{i}", headers=robot).content for i in loc["image_ids"]
+        ]
+        for loc in graph["locations"]
+    }
+
+
+def test_a_place_reached_by_a_path_gets_its_last_frame_until_spin_images_come(api: Api) -> None:
+    robot = api.register()
+    tour_id = start_teaching(api, robot)
+    mark(api, robot, "hall")
+    frame(api, robot, 0.0, seed=100, path="teach/spin")
+    for k in range(3):
+        frame(api, robot, 1.0 + k, seed=k)
+    r = mark(api, robot, "kitchen")
+    assert r.json()["location"]["image_count"] == 1 and r.json()["edge"]["image_count"] == 3
+    assert place_images(api, robot, tour_id)["kitchen"] == [make_jpeg(2)]
+    # the spin images replace it: a client that spins at every place gets only its spin images
+    frame(api, robot, 4.0, seed=200, path="teach/spin")
+    frame(api, robot, 4.5, seed=201, path="teach/spin")
+    assert place_images(api, robot, tour_id)["kitchen"] == [make_jpeg(200), make_jpeg(201)]
+    # a place that has images keeps just them when a path reaches it again
+    for k in range(2):
+        frame(api, robot, 5.0 + k, seed=10 + k)
+    mark(api, robot, "hall")
+    assert api.client.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+    images = place_images(api, robot, tour_id)
+    assert images == {"hall": [make_jpeg(100)], "kitchen": [make_jpeg(200), make_jpeg(201)]}
+
+
+def test_finish_refuses_a_place_without_an_image(api: Api) -> None:
+    robot = api.register()
+    tour_id = start_teaching(api, robot)
+    mark(api, robot, "hall")  # the first place: no path leads there, and no spin image
+    for k in range(2):
+        frame(api, robot, k, seed=k)
+    mark(api, robot, "kitchen")
+    before = api.dump()
+    r = api.client.post("/robots/rover/teach/finish", headers=robot)
+    assert_refused(
+        api, r, 409, "place 'hall' has no image", "/robots/rover/teach/spin", "at 'kitchen' now"
+    )
+    assert api.dump() == before
+    # drive back and mark it again: the path's last frame becomes its image
+    for k in range(2):
+        frame(api, robot, 10 + k, seed=10 + k)
+    mark(api, robot, "hall")
+    assert api.client.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+    assert place_images(api, robot, tour_id)["hall"] == [make_jpeg(11)]
+
+
+def test_a_spin_image_at_the_first_place_lets_teaching_finish(api: Api) -> None:
+    robot = api.register()
+    start_teaching(api, robot)
+    mark(api, robot, "hall")
+    r = api.client.post("/robots/rover/teach/finish", headers=robot)
+    assert_refused(api, r, 409, "place 'hall' has no image", "spin image")
+    assert frame(api, robot, 0.0, path="teach/spin").status_code == 200
+    assert api.client.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+
+
 # --- bad input: clear 4xx, nothing changed ----------------------------------------------------
 
 
@@ -140,7 +280,7 @@ def test_unknown_things_are_404(api: Api) -> None:
     assert_refused(api, api.client.get("/images/99", headers=robot), 404, "no image")
     r = api.client.post("/robots/rover/teach/start", json={"tour": 42}, headers=robot)
     assert_refused(api, r, 404, "no tour")
-    r = api.client.get("/robots/ghost/state", headers=api.admin)
+    r = api.client.get("/robots/ghost/state", headers=robot)
     assert_refused(api, r, 404, "no robot", "ghost")
     assert api.dump() == before
 
@@ -190,7 +330,7 @@ def test_duplicate_robot_is_409(api: Api) -> None:
     assert api.dump() == before
 
 
-@pytest.mark.parametrize("name", ["", "   ", "x" * 65])
+@pytest.mark.parametrize("name", ["", "   ", "x" * 65, " kitchen", "kitchen\n", "kitchen\u00a0"])
 def test_empty_or_overlong_location_name_is_422(api: Api, name: str) -> None:
     robot = api.register()
     start_teaching(api, robot)
@@ -199,15 +339,35 @@ def test_empty_or_overlong_location_name_is_422(api: Api, name: str) -> None:
     assert api.dump() == before
 
 
+@pytest.mark.parametrize("tour", [True, "1", 1.5, 0])
+def test_a_tour_id_that_is_not_a_positive_json_integer_is_422(api: Api, tour: object) -> None:
+    """The schema says integer: neither true nor "1" is taken for 1 (lax pydantic would)."""
+    robot = api.register()
+    api.client.post("/tours", json={"name": "home"}, headers=robot)
+    before = api.dump()
+    r = api.client.post("/robots/rover/teach/start", json={"tour": tour}, headers=robot)
+    assert_refused(api, r, 422, "tour")
+    assert api.dump() == before
+
+
+@pytest.mark.parametrize("name", ["   ", " home", "home "])
+def test_a_tour_name_with_spaces_at_either_end_is_422(api: Api, name: str) -> None:
+    robot = api.register()
+    before = api.dump()
+    assert_refused(api, api.client.post("/tours", json={"name": name}, headers=robot), 422, "name")
+    assert api.dump() == before
+
+
 @pytest.mark.parametrize("n_frames", [0, 1])
-def test_edge_with_fewer_than_two_images_is_422(api: Api, n_frames: int) -> None:
+def test_edge_with_fewer_than_two_images_is_409(api: Api, n_frames: int) -> None:
+    """The mark is well formed (422 is for those that are not); the open path is too short."""
     robot = api.register()
     start_teaching(api, robot)
     mark(api, robot, "kitchen")
     for k in range(n_frames):
         frame(api, robot, k)
     before = api.dump()
-    assert_refused(api, mark(api, robot, "office"), 422, "at least 2 images", str(n_frames))
+    assert_refused(api, mark(api, robot, "office"), 409, "at least 2 images", str(n_frames))
     assert api.dump() == before
 
 
@@ -314,6 +474,127 @@ def test_missing_or_bad_timestamp_is_422(api: Api, params: dict[str, str]) -> No
     assert api.dump() == before
 
 
+@pytest.mark.parametrize(
+    ("params", "words"),
+    [
+        ({"timestamp": 1.0, "v": 1e300}, ("query.v", "less than or equal to 5")),
+        ({"timestamp": 1.0, "v": -5.5}, ("query.v", "greater than or equal to -5")),
+        ({"timestamp": 1.0, "w": 21.0}, ("query.w", "less than or equal to 20")),
+        ({"timestamp": 1.0, "w": "-inf"}, ("query.w", "finite")),
+        ({"timestamp": 1.0, "v": "nan"}, ("query.v", "finite")),
+        ({"timestamp": -1.0}, ("query.timestamp", "greater than or equal to 0")),
+        ({"timestamp": 2e10}, ("query.timestamp", "less than or equal to 10000000000")),
+        ({"timestamp": "inf"}, ("query.timestamp", "finite")),
+        ({"timestamp": 1.0, "depth": [1.0, -0.1]}, ("query.depth.1", "greater than or equal")),
+        ({"timestamp": 1.0, "depth": [1001.0]}, ("query.depth.0", "less than or equal to 1000")),
+        ({"timestamp": 1.0, "depth": ["inf"]}, ("query.depth.0", "finite")),
+        ({"timestamp": 1.0, "depth": [1.0] * 257}, ("query.depth", "at most 256")),
+    ],
+)
+def test_physically_impossible_frame_values_are_422(
+    api: Api, params: dict[str, Any], words: tuple[str, ...]
+) -> None:
+    """Bounds from the schema (and the OpenAPI document): the answer names the parameter and
+    the limit; nothing is stored."""
+    robot = api.register()
+    start_teaching(api, robot)
+    mark(api, robot, "kitchen")
+    before = api.dump()
+    for path in ("frames", "teach/spin"):
+        r = api.client.post(
+            f"/robots/rover/{path}", params=params, content=make_jpeg(), headers={**robot, **JPEG}
+        )
+        assert_refused(api, r, 422, *words)
+    assert api.dump() == before
+
+
+def test_a_wild_speed_while_teaching_leaves_the_odometry_intact(api: Api) -> None:
+    robot = api.register()
+    tour_id = start_teaching(api, robot)
+    mark(api, robot, "kitchen")
+    for k in range(3):
+        assert frame(api, robot, float(k), seed=k).status_code == 200  # 0.3 m/s, 1 s apart
+    before = api.dump()
+    r = api.client.post(
+        "/robots/rover/frames",
+        params={"timestamp": 3.0, "v": 1e300},
+        content=make_jpeg(3),
+        headers={**robot, **JPEG},
+    )
+    assert_refused(api, r, 422, "query.v", "5")
+    assert api.dump() == before
+    assert frame(api, robot, 3.0, seed=3).status_code == 200
+    edge = mark(api, robot, "office").json()["edge"]
+    assert edge["image_count"] == 4
+    assert edge["length_m"] == pytest.approx(0.9)  # 3 intervals of 1 s at 0.3 m/s
+    graph = api.client.get(f"/tours/{tour_id}", headers=robot).json()
+    assert graph["edges"][0]["length_m"] == pytest.approx(0.9)
+
+
+def test_the_robot_client_sends_rays_that_saw_nothing_within_the_bounds(api: Api) -> None:
+    """The simulated depth sensor reports inf beyond its range: the client sends the maximum."""
+    import httpx
+
+    from robot_client.client import TeachRepeatClient
+
+    robot = api.register()
+    start_teaching(api, robot)
+    mark(api, robot, "kitchen")
+    sent: list[httpx.Request] = []
+
+    def forward(request: httpx.Request) -> httpx.Response:
+        sent.append(request)
+        r = api.client.request(
+            request.method, str(request.url), content=request.content, headers=request.headers
+        )
+        return httpx.Response(r.status_code, content=r.content, headers=r.headers)
+
+    token = robot["Authorization"].split()[1]
+    with TeachRepeatClient("http://testserver", token, transport=httpx.MockTransport(forward)) as c:
+        c.upload_frame("rover", make_jpeg(), timestamp=1.0, depth=[math.inf, math.nan, 2.0, 5e3])
+    assert sent[0].url.params.get_list("depth") == ["1000.0", "1000.0", "2.0", "1000.0"]
+
+
+def test_the_openapi_document_declares_the_physical_bounds(api: Api) -> None:
+    spec = api.client.get("/openapi.json").json()
+    operation = spec["paths"]["/robots/{robot}/frames"]["post"]
+    params = {p["name"]: p["schema"] for p in operation["parameters"]}
+    assert (params["timestamp"]["minimum"], params["timestamp"]["maximum"]) == (0, 1e10)
+    assert (params["v"]["minimum"], params["v"]["maximum"]) == (-5, 5)
+    assert (params["w"]["minimum"], params["w"]["maximum"]) == (-20, 20)
+    depth = next(s for s in params["depth"]["anyOf"] if s["type"] == "array")
+    assert (depth["items"]["minimum"], depth["items"]["maximum"]) == (0, 1000)
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ('{"name": "a" "b"}', "line 1, column 14: Expecting ',' delimiter"),
+        ('{\n  "name": "a"\n  "x": 1}', "line 3, column 3: Expecting ',' delimiter"),
+        ('{"name": }', "line 1, column 10: Expecting value"),
+    ],
+)
+def test_malformed_json_says_where(api: Api, text: str, where: str) -> None:
+    robot = api.register()
+    before = api.dump()
+    r = api.client.post(
+        "/tours", content=text, headers={**robot, "Content-Type": "application/json"}
+    )
+    assert_refused(api, r, 422, f"invalid request - body: JSON decode error at {where}")
+    assert api.dump() == before
+
+
+def test_an_undeclared_method_is_405_with_allow(api: Api) -> None:
+    for method, url, allowed in (
+        ("DELETE", "/tours", "GET, POST"),
+        ("TRACE", "/health", "GET"),
+        ("PUT", "/robots/rover/frames", "POST"),
+    ):
+        r = api.client.request(method, url, headers=api.admin)
+        assert_refused(api, r, 405, "method not allowed")
+        assert r.headers["allow"] == allowed, (url, r.headers)
+
+
 # --- authentication -------------------------------------------------------------------------
 
 
@@ -333,8 +614,8 @@ def test_robot_token_cannot_do_admin_work(api: Api) -> None:
     robot = api.register()
     before = api.dump()
     r = api.client.post("/robots", json={"name": "evil"}, headers=robot)
-    assert_refused(api, r, 403, "admin")
-    assert_refused(api, api.client.get("/robots", headers=robot), 403, "admin")
+    assert_refused(api, r, 403, "robot token", "household login")
+    assert_refused(api, api.client.get("/robots", headers=robot), 403, "household login")
     assert api.dump() == before
 
 
@@ -351,18 +632,27 @@ def test_robot_token_cannot_touch_another_robot(api: Api) -> None:
         ("POST", "/robots/other/teach/abort", {}),
         ("POST", "/robots/other/frames", {"params": {"timestamp": 1}, "content": make_jpeg()}),
         ("POST", "/robots/other/teach/spin", {"params": {"timestamp": 1}, "content": make_jpeg()}),
-        ("GET", "/robots/nobody/state", {}),
     ]
     for method, path, kwargs in calls:
         r = api.client.request(method, path, headers=mine, **kwargs)
         assert_refused(api, r, 403, "belongs to robot 'rover'")
+    r = api.client.get("/robots/nobody/state", headers=mine)
+    assert_refused(api, r, 404, "no robot named 'nobody'")
     assert api.dump() == before
 
 
-def test_admin_may_act_for_a_robot(api: Api) -> None:
-    api.register("rover")
-    r = api.client.get("/robots/rover/state", headers=api.admin)
-    assert r.status_code == 200 and r.json()["mode"] == "idle"
+def test_the_admin_token_is_for_administration_only(api: Api) -> None:
+    robot = api.register("rover")
+    api.client.post("/tours", json={"name": "home"}, headers=robot)
+    for method, path in (
+        ("GET", "/robots/rover/state"),
+        ("POST", "/robots/rover/stop"),
+        ("GET", "/tours"),
+        ("GET", "/tours/1"),
+        ("GET", "/images/1"),
+    ):
+        r = api.client.request(method, path, headers=api.admin)
+        assert_refused(api, r, 403, "administration only")
 
 
 def test_bad_robot_name_is_422(api: Api) -> None:

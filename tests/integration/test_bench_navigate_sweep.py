@@ -28,7 +28,8 @@ def bench(tmp_path: Path, name: str, *extra: str) -> dict[str, Any]:
 
 def rows(result: dict[str, Any]) -> list[dict[str, Any]]:
     groups = result.get("results", [result])
-    return [{k: v for k, v in r.items() if k != "wall_s"} for g in groups for r in g["rows"]]
+    skip = ("wall_s", "recording", "recording_db")
+    return [{k: v for k, v in r.items() if k not in skip} for g in groups for r in g["rows"]]
 
 
 @pytest.mark.slow
@@ -37,11 +38,18 @@ def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_worke
 ) -> None:
     # the same plan twice: two tours on each worker's server, and the same trials on both
     plans = ["--plan", str(PLAN), str(PLAN), "--condition", "same", "moved"]
-    one = bench(tmp_path, "one", *plans, "--workers", "1")
+    evidence, every = tmp_path / "failed", tmp_path / "every"
+    one = bench(tmp_path, "one", *plans, "--workers", "1", "--record", str(evidence))
     two = bench(tmp_path, "two", *plans, "--workers", "2")
-    alone = bench(tmp_path, "alone", "--plan", str(PLAN), "--condition", "moved", "--only", "1")
+    alone = bench(
+        tmp_path,
+        "alone",
+        *("--plan", str(PLAN), "--condition", "moved", "--only", "1"),
+        *("--record", str(every), "--record-all"),
+    )
 
-    assert rows(one) == rows(two)  # trial for trial, to the robot microsecond and millimetre
+    # trial for trial, to the robot microsecond and millimetre (recording changes nothing)
+    assert rows(one) == rows(two)
     first, second = ([r for r in rows(one) if r["plan_index"] == k] for k in (0, 1))
     for r in second:
         r["plan_index"] = 0
@@ -59,6 +67,21 @@ def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_worke
     pooled = one["pooled"]
     assert pooled["trials"] == 8 and pooled["wrong_arrivals"] == 0
     assert pooled["successes"] >= 6, rows(one)  # the place across the door is found
+    # the evidence: a failed trial's recording is kept (and named), a successful one's not
+    kept = [r for g in one["results"] for r in g["rows"] if r.get("recording")]
+    assert all(not r["success"] for r in kept) and len(kept) == 8 - pooled["successes"]
+    assert one["record"] == {"folder": str(evidence), "all": False, "kept": len(kept)}
+    (row,) = alone["rows"]
+    assert row["recording"] == str(every / "two_rooms" / "moved" / "trial_001.mcap")
+    assert row["recording_db"] == str(every / "two_rooms.sqlite")
+    from server.recording.reader import read_recording
+    from server.recording.replay import replay
+
+    recording = read_recording(row["recording"])
+    assert recording.meta["goal"] == row["goal"] and recording.complete
+    assert len(recording.frames) == row["steps"]
+    report, _ = replay(recording, Path(row["recording_db"]))
+    assert report.frames_replayed == row["steps"] and not report.differing
     for r in rows(one):
         assert r["success"] or r["cause"] in (
             "wrong place",

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 
 def _children(pid: int) -> set[int]:
     """Process ids whose parent is ``pid`` (from /proc)."""
@@ -63,3 +65,30 @@ def test_sigterm_to_a_benchmark_stops_its_scratch_server(shared_data: Path) -> N
         for c in children | _children(bench.pid):  # (an orphan has left bench's children)
             if _alive(c):
                 os.kill(c, signal.SIGKILL)
+
+
+def test_a_server_interrupted_while_it_starts_is_stopped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SIGTERM or Ctrl-C can reach a benchmark while its scratch server is still importing
+    (before ``start_server`` returned it to anyone who could stop it): ``start_server`` stops
+    it itself instead of leaving an orphan."""
+    import server.process as process
+
+    started: list[subprocess.Popen[str]] = []
+    real_popen = subprocess.Popen
+
+    def popen(*args: object, **kwargs: object) -> subprocess.Popen[str]:
+        proc = real_popen(*args, **kwargs)  # type: ignore[call-overload]
+        started.append(proc)
+        return proc
+
+    def interrupted(*args: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(process.subprocess, "Popen", popen)
+    monkeypatch.setattr(process, "_wait_until_up", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        process.start_server(tmp_path / "never.sqlite")
+    assert len(started) == 1
+    assert started[0].poll() is not None, "the server outlived the interrupted start"

@@ -567,7 +567,7 @@ def test_read_only_database_answers_503_and_keeps_the_file_whole(api: Api) -> No
     for request in (
         lambda: post_frame(api, robot, 1, 0.1),
         lambda: api.client.post("/robots/rover/teach/locations", json={"name": "b"}, headers=robot),
-        lambda: api.client.post("/tours", json={"name": "other"}, headers=api.admin),
+        lambda: api.client.post("/tours", json={"name": "other"}, headers=robot),
         lambda: api.client.post("/robots", json={"name": "second"}, headers=api.admin),
     ):
         r = request()

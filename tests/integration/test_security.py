@@ -14,12 +14,14 @@ import time
 import tracemalloc
 import zlib
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 from conftest import Api, make_jpeg
+from fastapi.testclient import TestClient
 from pydantic import SecretStr
 
 JPEG = {"Content-Type": "image/jpeg"}
@@ -50,8 +52,6 @@ OPERATIONS = [
     for method, op in item.items()
     if method in {"get", "post", "put", "patch", "delete"}
 ]
-ROBOT_OPERATIONS = [o for o in OPERATIONS if o[1].startswith("/robots/{robot}/")]
-PUBLIC = {("GET", "/health")}
 
 
 def _resolve(schema: dict[str, Any]) -> dict[str, Any]:
@@ -74,10 +74,13 @@ def example(schema: dict[str, Any]) -> Any:
     return {"integer": 1, "number": 0.5, "boolean": False}.get(str(kind), "place")
 
 
-def request_for(method: str, path: str, op: dict[str, Any], robot: str) -> dict[str, Any]:
-    """``httpx`` request arguments that are valid for ``op`` (except, maybe, its authority)."""
+def request_for(
+    method: str, path: str, op: dict[str, Any], robot: str, values: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """``httpx`` request arguments that are valid for ``op`` (except, maybe, its authority);
+    path parameters from ``values``, else 1."""
     url = path.replace("{robot}", robot)
-    url = re.sub(r"\{[^}]+\}", "1", url)
+    url = re.sub(r"\{([^}]+)\}", lambda m: (values or {}).get(m[1], "1"), url)
     params = {
         p["name"]: example(p["schema"])
         for p in op.get("parameters", [])
@@ -97,83 +100,332 @@ def op_id(o: tuple[str, str, dict[str, Any]]) -> str:
     return f"{o[0]} {o[1]}"
 
 
-# --- one robot cannot read or drive another ---------------------------------------------------
+# --- the authorization matrix: every route x every kind of caller ------------------------------
+
+CALLERS = (
+    "none",  # no Authorization header
+    "wrong",  # a bearer token nobody was given
+    "revoked",  # robot 'rex' of household A, whose token was revoked
+    "own_robot",  # robot 'alice' of household A: the robot named in the path
+    "peer_robot",  # robot 'amy', also of household A
+    "other_robot",  # robot 'bob' of household B
+    "login",  # household A's login
+    "other_login",  # household B's login
+    "admin",
+)
+ALLOWED = "allowed"  # any answer but 401/403/404 and below 500
+CREDENTIALS = "credentials"  # the body's credentials decide (the example's are wrong): 401/429
+RULES: dict[str, dict[str, int | str]] = {
+    # who may call a kind of route, and what everyone else gets
+    "public": dict.fromkeys(CALLERS, ALLOWED),
+    "credentials": dict.fromkeys(CALLERS, CREDENTIALS),
+    "anyone_known": {
+        **dict.fromkeys(CALLERS, ALLOWED),
+        **dict.fromkeys(("none", "wrong", "revoked"), 401),
+    },
+    "admin": {
+        **dict.fromkeys(CALLERS, 403),
+        **dict.fromkeys(("none", "wrong", "revoked"), 401),
+        "admin": ALLOWED,
+    },
+    "login": {
+        **dict.fromkeys(CALLERS, 403),
+        **dict.fromkeys(("none", "wrong", "revoked"), 401),
+        "login": ALLOWED,
+        "other_login": ALLOWED,  # its own login; nothing of A's
+    },
+    "register": {
+        **dict.fromkeys(CALLERS, 403),
+        **dict.fromkeys(("none", "wrong", "revoked"), 401),
+        "login": ALLOWED,
+        "other_login": ALLOWED,  # into its own household
+        "admin": ALLOWED,
+    },
+    "drive_robot": {  # /robots/{robot}/... of robot alice (household A)
+        "none": 401,
+        "wrong": 401,
+        "revoked": 401,
+        "own_robot": ALLOWED,
+        "peer_robot": 403,
+        "other_robot": 404,
+        "login": ALLOWED,
+        "other_login": 404,
+        "admin": 403,
+    },
+    "manage_robot": {  # alice's token
+        "none": 401,
+        "wrong": 401,
+        "revoked": 401,
+        "own_robot": 403,
+        "peer_robot": 403,
+        "other_robot": 403,
+        "login": ALLOWED,
+        "other_login": 404,
+        "admin": ALLOWED,
+    },
+    "household_list": {  # /tours: each caller sees (and creates in) its own household
+        **dict.fromkeys(CALLERS, ALLOWED),
+        **dict.fromkeys(("none", "wrong", "revoked"), 401),
+        "admin": 403,
+    },
+    "household_object": {  # tour 1 and image 1, of household A
+        "none": 401,
+        "wrong": 401,
+        "revoked": 401,
+        "own_robot": ALLOWED,
+        "peer_robot": ALLOWED,
+        "other_robot": 404,
+        "login": ALLOWED,
+        "other_login": 404,
+        "admin": 403,
+    },
+}
+ROUTE_RULES: dict[tuple[str, str], str] = {
+    ("GET", "/health"): "public",
+    ("GET", "/"): "public",  # only points to /docs and the dashboard
+    ("POST", "/auth/login"): "credentials",
+    ("GET", "/whoami"): "anyone_known",
+    ("POST", "/households"): "admin",
+    ("GET", "/households"): "admin",
+    ("PUT", "/households/{household_id}/password"): "admin",
+    ("GET", "/audit"): "admin",
+    ("POST", "/auth/logout"): "login",
+    ("POST", "/robots"): "register",
+    ("GET", "/robots"): "register",
+    ("POST", "/robots/{robot}/token"): "manage_robot",
+    ("DELETE", "/robots/{robot}/token"): "manage_robot",
+    ("POST", "/tours"): "household_list",
+    ("GET", "/tours"): "household_list",
+    ("GET", "/tours/{tour_id}"): "household_object",
+    ("GET", "/images/{image_id}"): "household_object",
+    ("GET", "/robots/{robot}/recordings"): "drive_robot",  # a robot's recordings: as driving it
+    ("GET", "/robots/{robot}/recordings/{name}"): "drive_robot",
+}
+"""Every route's rule; the routes under /robots/{robot}/ not named here drive the robot."""
+
+
+def rule_of(method: str, path: str) -> str:
+    if (method, path) in ROUTE_RULES:
+        return ROUTE_RULES[(method, path)]
+    if path.startswith("/robots/{robot}/"):
+        return "drive_robot"
+    raise KeyError(f"{method} {path} has no authorization rule: add it to ROUTE_RULES")
+
+
+@dataclass
+class Households:
+    api: Api
+    headers: dict[str, dict[str, str]]
+    path_values: dict[str, str]  # real values of path parameters (alice's recording)
+
+
+PASSWORD = "correct horse battery"
 
 
 @pytest.fixture()
-def two_robots(api: Api) -> tuple[Api, dict[str, str], dict[str, str]]:
-    """Robots ``alice`` and ``bob``; ``bob`` is navigating in a tour with one place."""
+def households(api: Api) -> Households:
+    """Household A ('default', id 1): robots alice, amy, rex (revoked), tour 1 'home' with the
+    place 'place' and image 1, alice navigating in it. Household B ('bee'): robot bob."""
+    admin = api.admin
+    c = api.client
+    assert c.put("/households/1/password", json={"password": PASSWORD}, headers=admin).is_success
+    r = c.post("/households", json={"name": "bee", "password": PASSWORD + "!"}, headers=admin)
+    assert r.status_code == 201, r.text
+
+    def login(name: str, password: str) -> dict[str, str]:
+        r = c.post("/auth/login", json={"household": name, "password": password})
+        assert r.status_code == 200, r.text
+        return {"Authorization": f"Bearer {r.json()['token']}"}
+
+    a_login, b_login = login("default", PASSWORD), login("bee", PASSWORD + "!")
     alice = api.register("alice")
-    bob = api.register("bob")
-    tour = api.client.post("/tours", json={"name": "home"}, headers=bob).json()["id"]
-    api.client.post("/robots/bob/teach/start", json={"tour": tour}, headers=bob)
-    api.client.post("/robots/bob/teach/locations", json={"name": "place"}, headers=bob)
-    api.client.post(
-        "/robots/bob/teach/spin",
+    amy = api.register("amy")
+    rex = api.register("rex")
+    assert c.delete("/robots/rex/token", headers=a_login).status_code == 200
+    r = c.post("/robots", json={"name": "bob"}, headers=b_login)
+    assert r.status_code == 201, r.text
+    bob = {"Authorization": f"Bearer {r.json()['token']}"}
+    tour = c.post("/tours", json={"name": "home"}, headers=alice).json()["id"]
+    assert tour == 1
+    c.post("/robots/alice/teach/start", json={"tour": tour}, headers=alice)
+    c.post("/robots/alice/teach/locations", json={"name": "place"}, headers=alice)
+    r = c.post(
+        "/robots/alice/teach/spin",
         params={"timestamp": 0},
         content=make_jpeg(2),
-        headers={
-            **bob,
-            **JPEG,
-        },
+        headers={**alice, **JPEG},
     )
-    api.client.post("/robots/bob/teach/finish", headers=bob)
-    r = api.client.post("/robots/bob/goto", json={"location": "place"}, headers=bob)
     assert r.status_code == 200, r.text
-    return api, alice, bob
+    c.post("/robots/alice/teach/finish", headers=alice)
+    r = c.post("/robots/alice/goto", json={"location": "place", "record": True}, headers=alice)
+    assert r.status_code == 200, r.text
+    r = c.post(
+        "/robots/alice/frames",
+        params={"timestamp": 1},
+        content=make_jpeg(3),
+        headers={**alice, **JPEG},
+    )
+    assert r.status_code == 200, r.text
+    api.client.app.state.services.recordings.wait_idle()  # type: ignore[attr-defined]
+    (recording,) = c.get("/robots/alice/recordings", headers=alice).json()
+    return Households(
+        api,
+        {
+            "none": {},
+            "wrong": {"Authorization": "Bearer not-a-token"},
+            "revoked": rex,
+            "own_robot": alice,
+            "peer_robot": amy,
+            "other_robot": bob,
+            "login": a_login,
+            "other_login": b_login,
+            "admin": admin,
+        },
+        {"name": recording["name"]},
+    )
 
 
-def test_every_robot_route_is_covered() -> None:
-    assert len(ROBOT_OPERATIONS) >= 9
-    assert all("{robot}" in path for _, path, _ in ROBOT_OPERATIONS)
+def test_every_route_has_an_authorization_rule() -> None:
+    for method, path, _ in OPERATIONS:
+        rule_of(method, path)  # raises for a route nobody thought about
+    assert {(m, p) for m, p, _ in OPERATIONS} >= set(ROUTE_RULES)
 
 
-@pytest.mark.parametrize("operation", ROBOT_OPERATIONS, ids=op_id)
-def test_a_robot_token_cannot_use_another_robots_routes(
-    two_robots: tuple[Api, dict[str, str], dict[str, str]],
-    operation: tuple[str, str, dict[str, Any]],
-) -> None:
-    api, alice, bob = two_robots
+@pytest.mark.parametrize("operation", OPERATIONS, ids=op_id)
+def test_authorization_matrix(households: Households, operation: tuple[str, str, Any]) -> None:
+    """Each route x each kind of caller gets the answer its rule says; a refused call changes
+    nothing; a caller from household B never sees a name of household A's."""
+    api = households.api
     method, path, op = operation
-    before = api.dump()
-    state_before = api.client.get("/robots/bob/state", headers=bob).json()
-    kwargs = request_for(method, path, op, "bob")
-    kwargs["headers"].update(alice)
-    r = api.client.request(**kwargs)
-    assert r.status_code == 403, r.text
-    body = r.json()
-    assert body["code"] == "forbidden" and "alice" in body["detail"]
-    assert "place" not in r.text and "navigat" not in r.text  # nothing about bob leaks
-    assert api.dump() == before
-    assert api.client.get("/robots/bob/state", headers=bob).json() == state_before
-    # the same request for itself is not refused for lack of rights
-    own = request_for(method, path, op, "alice")
-    own["headers"].update(alice)
-    assert api.client.request(**own).status_code not in (401, 403)
-
-
-@pytest.mark.parametrize("operation", [o for o in OPERATIONS if o[:2] not in PUBLIC], ids=op_id)
-def test_every_route_but_health_needs_a_valid_token(
-    api: Api, operation: tuple[str, str, dict[str, Any]]
-) -> None:
-    api.register("alice")
-    method, path, op = operation
-    for headers in ({}, {"Authorization": "Bearer not-a-token"}, {"Authorization": "Basic eDp5"}):
-        kwargs = request_for(method, path, op, "alice")
-        kwargs["headers"].update(headers)
+    rule = RULES[rule_of(method, path)]
+    for caller in CALLERS:
+        before = api.dump()
+        kwargs = request_for(method, path, op, "alice", households.path_values)
+        kwargs["headers"].update(households.headers[caller])
         r = api.client.request(**kwargs)
-        assert r.status_code == 401, (headers, r.text)
-        assert r.headers.get("www-authenticate") == "Bearer"
-        assert "token" in r.json()["detail"]
+        expected = rule[caller]
+        where = f"{caller}: {method} {path} -> {r.status_code} {r.text[:200]}"
+        if expected == ALLOWED:
+            assert r.status_code not in (401, 403, 404) and r.status_code < 500, where
+        elif expected == CREDENTIALS:
+            assert r.status_code in (401, 429), where
+            assert api.dump() == before, where
+        else:
+            assert r.status_code == expected, where
+            assert api.dump() == before, where
+        if expected == 401:
+            assert r.headers.get("www-authenticate") == "Bearer", where
+        if caller.startswith("other_") and path != "/auth/login":
+            for secret in ("alice", "amy", '"home"', "place"):
+                assert secret not in r.text or secret in repr(kwargs), where
 
 
-@pytest.mark.parametrize(("method", "path"), [("POST", "/robots"), ("GET", "/robots")])
-def test_admin_routes_refuse_a_robot_token(api: Api, method: str, path: str) -> None:
-    robot = api.register("alice")
+def test_recordings_are_read_by_their_robot_and_its_household_only(
+    households: Households,
+) -> None:
+    c, h = households.api.client, households.headers
+    name = households.path_values["name"]
+    url = f"/robots/alice/recordings/{name}"
+    for caller in ("own_robot", "login"):
+        r = c.get(url, headers=h[caller])
+        assert r.status_code == 200 and r.content.startswith(b"\x89MCAP0\r\n"), caller
+        assert r.headers["content-type"] == "application/octet-stream"
+    assert c.get(url, headers=h["peer_robot"]).status_code == 403
+    for caller in ("other_robot", "other_login"):
+        r = c.get(url, headers=h[caller])
+        assert r.status_code == 404 and name not in r.text, caller
+    # bob's own listing holds nothing of household A's; a forged name is not found either
+    assert c.get("/robots/bob/recordings", headers=h["other_robot"]).json() == []
+    forged = name.replace("alice", "bob", 1)
+    assert c.get(f"/robots/bob/recordings/{forged}", headers=h["other_robot"]).status_code == 404
+    traversal = "/robots/bob/recordings/..%2Fhousehold1%2F" + name
+    assert c.get(traversal, headers=h["other_robot"]).status_code in (404, 422)
+
+
+def test_a_revoked_token_fails_at_once_even_when_remembered(households: Households) -> None:
+    c, login = households.api.client, households.headers["login"]
+    alice = households.headers["own_robot"]
+    assert c.get("/robots/alice/state", headers=alice).status_code == 200  # now cached
+    assert c.delete("/robots/alice/token", headers=login).status_code == 200
+    assert c.get("/robots/alice/state", headers=alice).status_code == 401
+    listed = {r["name"]: r for r in c.get("/robots", headers=login).json()}
+    assert listed["alice"]["token_active"] is False and "token" not in listed["alice"]
+    r = c.post("/robots/alice/token", headers=login)
+    fresh = {"Authorization": f"Bearer {r.json()['token']}"}
+    assert c.get("/robots/alice/state", headers=fresh).status_code == 200
+    assert c.get("/robots/alice/state", headers=alice).status_code == 401  # the old one stays dead
+
+
+def test_rotating_a_token_ends_the_old_one(households: Households) -> None:
+    c, admin = households.api.client, households.headers["admin"]
+    alice = households.headers["own_robot"]
+    assert c.get("/whoami", headers=alice).json()["robot"] == "alice"
+    new = c.post("/robots/alice/token", headers=admin).json()["token"]
+    assert c.get("/whoami", headers=alice).status_code == 401
+    me = c.get("/whoami", headers={"Authorization": f"Bearer {new}"}).json()
+    assert me == {"kind": "robot", "robot": "alice", "household": "default"}
+
+
+def test_logout_ends_the_login(households: Households) -> None:
+    c, login = households.api.client, households.headers["login"]
+    assert c.get("/whoami", headers=login).json() == {
+        "kind": "household",
+        "robot": None,
+        "household": "default",
+    }
+    assert c.post("/auth/logout", headers=login).status_code == 204
+    assert c.get("/tours", headers=login).status_code == 401
+
+
+def test_households_see_only_their_own(households: Households) -> None:
+    c, h = households.api.client, households.headers
+    assert [t["name"] for t in c.get("/tours", headers=h["login"]).json()] == ["home"]
+    assert c.get("/tours", headers=h["other_login"]).json() == []
+    names = [r["name"] for r in c.get("/robots", headers=h["other_login"]).json()]
+    assert names == ["bob"]
+    # the same tour name in another household is not a conflict, and is another tour
+    r = c.post("/tours", json={"name": "home"}, headers=h["other_robot"])
+    assert r.status_code == 201 and r.json()["id"] != 1
+    # B cannot teach or navigate in A's tour, even by id
+    r = c.post("/robots/bob/teach/start", json={"tour": 1}, headers=h["other_robot"])
+    assert r.status_code == 404
+    r = c.post("/robots/bob/goto", json={"location": "place", "tour": 1}, headers=h["other_robot"])
+    assert r.status_code == 404
+
+
+def test_a_wrong_password_is_refused_and_repeated_failures_wait(api: Api) -> None:
+    c = api.client
+    c.put("/households/1/password", json={"password": PASSWORD}, headers=api.admin)
     before = api.dump()
-    r = api.client.request(method, path, json={"name": "mallory"}, headers=robot)
-    assert r.status_code == 403 and "admin" in r.json()["detail"]
+    for _ in range(3):
+        r = c.post("/auth/login", json={"household": "default", "password": "wrong password"})
+        assert r.status_code == 401 and r.json()["detail"] == "wrong household or password"
+    r = c.post("/auth/login", json={"household": "nobody", "password": "wrong password"})
+    assert r.status_code == 401 and r.json()["detail"] == "wrong household or password"
+    r = c.post("/auth/login", json={"household": "default", "password": PASSWORD})
+    assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1  # even the right one
     assert api.dump() == before
+    audit = c.get("/audit", headers=api.admin).json()
+    assert [e["actor"] for e in audit[:2]] == ["login:default", "login:nobody"]
+    assert all(PASSWORD not in str(e) for e in audit)
+
+
+def test_state_changing_calls_are_audited_without_secrets(households: Households) -> None:
+    c, h = households.api.client, households.headers
+    c.post("/robots/alice/stop", headers=h["login"])
+    c.post("/robots/alice/goto", json={"location": "place"}, headers=h["own_robot"])
+    entries = c.get("/audit", params={"limit": 3}, headers=h["admin"]).json()
+    assert [(e["actor"], e["action"], e["status"]) for e in entries[:2]] == [
+        ("robot:alice", "POST /robots/{robot}/goto", 200),
+        ("household:default", "POST /robots/{robot}/stop", 200),
+    ]
+    assert entries[0]["target"] == "/robots/alice/goto" and entries[0]["at"] > 0
+    everything = c.get("/audit", params={"limit": 1000}, headers=h["admin"]).text
+    for header in h.values():
+        for value in header.values():
+            assert value.split(" ", 1)[1] not in everything
+    assert PASSWORD not in everything
+    assert "/frames" not in everything and "/teach/spin" not in everything  # the data stream
 
 
 # --- hostile image bodies ---------------------------------------------------------------------
@@ -460,32 +712,58 @@ def test_real_server_logs_no_tokens_and_listens_on_loopback_only(
 def test_a_found_token_is_remembered_for_a_minute_and_an_unknown_one_is_not(
     tmp_path: Path,
 ) -> None:
+    from server import schemas
     from server.security import hash_token
-    from server.services.tours import TOKEN_CACHE_S, RobotService
+    from server.services.households import TOKEN_CACHE_S, Identities
+    from server.services.tours import RobotService
     from server.storage.repo import Repo
 
     now = [1000.0]
     repo = Repo(tmp_path / "tokens.sqlite")
-    robots = RobotService(repo, clock=lambda: now[0])
+    identities = Identities(repo, clock=lambda: now[0])
+    robots = RobotService(repo, identities)
     try:
-        from server import schemas
-
-        token = robots.register(schemas.RobotCreate(name="rover")).token
+        token = robots.register(schemas.RobotCreate(name="rover"), 1).token
         found = hash_token(token)
         unknown = hash_token("not-a-token")
-        assert robots.cached_robot(found) is None  # nothing remembered before a lookup
-        assert robots.robot_for_token(found) == "rover"
-        assert robots.cached_robot(found) == "rover"
-        assert robots.robot_for_token(unknown) is None
-        assert robots.cached_robot(unknown) is None
+        assert identities.cached(found) is None  # nothing remembered before a lookup
+        assert identities.lookup(found).robot == "rover"  # type: ignore[union-attr]
+        assert identities.cached(found).robot == "rover"  # type: ignore[union-attr]
+        assert identities.lookup(unknown) is None
+        assert identities.cached(unknown) is None
         # a robot row removed by hand stops authenticating once the memory expires
         with repo.transaction():
             repo.db.conn.execute("DELETE FROM robots WHERE name = 'rover'")
         now[0] += TOKEN_CACHE_S - 1
-        assert robots.cached_robot(found) == "rover"
+        assert identities.cached(found) is not None
         now[0] += 2
-        assert robots.cached_robot(found) is None
-        assert robots.robot_for_token(found) is None
+        assert identities.cached(found) is None
+        assert identities.lookup(found) is None
+    finally:
+        repo.close()
+
+
+def test_an_expired_login_fails_even_when_remembered(tmp_path: Path) -> None:
+    from server import schemas
+    from server.security import hash_token
+    from server.services.households import HouseholdService, Identities, LoginParams
+    from server.storage.repo import Repo
+
+    wall = [5000.0]
+    repo = Repo(tmp_path / "logins.sqlite")
+    identities = Identities(repo, wall=lambda: wall[0])
+    households = HouseholdService(
+        repo, identities, LoginParams(lifetime_s=60.0), wall=lambda: wall[0]
+    )
+    try:
+        households.create(schemas.HouseholdCreate(name="home", password=PASSWORD))
+        token = households.login(schemas.LoginRequest(household="home", password=PASSWORD)).token
+        assert identities.lookup(hash_token(token)) is not None
+        wall[0] += 59
+        assert identities.cached(hash_token(token)) is not None
+        wall[0] += 2
+        assert identities.cached(hash_token(token)) is None
+        assert identities.lookup(hash_token(token)) is None
     finally:
         repo.close()
 
@@ -498,3 +776,54 @@ def test_a_token_that_authenticated_once_cannot_drive_another_robot(api: Api) ->
     assert r.status_code == 403 and "belongs to robot 'rover'" in r.json()["detail"]
     r = api.client.post("/robots/other/goto", json={"location": "kitchen"}, headers=rover)
     assert r.status_code == 403
+
+
+# --- rate limits ------------------------------------------------------------------------------
+
+
+def limited_api(tmp_path: Path, **limits: float) -> TestClient:
+    from server.app import create_app
+    from server.config import Settings
+
+    settings = Settings(
+        db=tmp_path / "limits.sqlite",
+        admin_token=SecretStr("limits-admin"),
+        dashboard_port=None,
+        **limits,  # type: ignore[arg-type]
+    )
+    return TestClient(create_app(settings))
+
+
+def test_300_wrong_tokens_are_answered_429_once_the_allowance_is_spent(tmp_path: Path) -> None:
+    """The issue's measurement: 300 requests with a wrong token as fast as possible. With the
+    defaults, the first failed_auth_burst are 401 and every later one 429 with Retry-After,
+    from the very next request on (well within 1 s of the allowance being spent)."""
+    from server.ratelimit import RateLimits
+
+    burst = int(RateLimits.failed_auth_burst)
+    with limited_api(tmp_path) as http:
+        wrong = {"Authorization": "Bearer not-a-token"}
+        answers = []
+        for _ in range(300):
+            r = http.get("/tours", headers=wrong)
+            answers.append((r.status_code, time.monotonic(), r.headers.get("retry-after")))
+        statuses = [a[0] for a in answers]
+        assert statuses[:burst] == [401] * burst
+        assert set(statuses[burst:]) == {429}
+        assert answers[burst][1] - answers[burst - 1][1] < 1.0
+        assert 1 <= int(answers[burst][2]) <= 1 / RateLimits.failed_auth_per_s
+        # the address is held up as a whole, the admin too, until the wait is over
+        r = http.get("/households", headers={"Authorization": "Bearer limits-admin"})
+        assert r.status_code == 429 and "failed authentications" in r.json()["detail"]
+
+
+def test_one_token_over_its_rate_waits_then_goes_on(tmp_path: Path) -> None:
+    with limited_api(tmp_path, rate_token_per_s=2.0, rate_token_burst=5.0) as http:
+        admin = {"Authorization": "Bearer limits-admin"}
+        statuses = [http.get("/households", headers=admin).status_code for _ in range(6)]
+        assert statuses == [200] * 5 + [429]
+        r = http.get("/households", headers=admin)
+        assert r.status_code == 429 and r.headers["retry-after"] == "1"
+        assert "this token" in r.json()["detail"]
+        time.sleep(0.6)
+        assert http.get("/households", headers=admin).status_code == 200

@@ -57,10 +57,12 @@ def test_teach_the_real_corridor_frames(
 
 def test_sigkill_during_teaching_leaves_a_consistent_file(server: ServerProcess) -> None:
     client = robot_client(server)
+    token = client._http.headers["Authorization"].split(" ", 1)[1]
     client.retries = 0
     tour = client.create_tour("crashy")
     client.start_teaching("rover", tour.id)
     client.mark_location("rover", "a")
+    client.upload_spin_image("rover", make_jpeg(99), timestamp=0.0)  # the first place's image
     t = 0.0
     for k in range(5):
         t += 0.1
@@ -103,16 +105,16 @@ def test_sigkill_during_teaching_leaves_a_consistent_file(server: ServerProcess)
     # restart on the same file: teaching goes on where the file says it was
     again = start_server(server.db)
     try:
-        with TeachRepeatClient(again.url, ADMIN) as admin:
-            state = admin.state("rover")
+        with TeachRepeatClient(again.url, token) as robot:  # itself, after the restart
+            state = robot.state("rover")
             assert state.mode == "teaching"
             pending = state.teaching.open_path_images if state.teaching else -1
             last = state.teaching.last_timestamp if state.teaching else None
             ts = (last or 0.0) + 1.0
             for k in range(2):
-                admin.upload_frame("rover", make_jpeg(k), timestamp=ts + k)
-            marked = admin.mark_location("rover", "after-crash")
+                robot.upload_frame("rover", make_jpeg(k), timestamp=ts + k)
+            marked = robot.mark_location("rover", "after-crash")
             assert marked.edge is not None and marked.edge.image_count == pending + 2
-            admin.finish_teaching("rover")
+            robot.finish_teaching("rover")
     finally:
         again.stop()

@@ -97,3 +97,35 @@ def test_an_unknown_option_prints_the_sub_command_s_usage(
     err = capsys.readouterr().err
     assert err.startswith("usage: teachrepeat bench navigate")
     assert "unrecognized arguments: --bogus" in err
+
+
+@pytest.mark.parametrize(
+    ("host", "login", "needed"),
+    [
+        ("127.0.0.1", None, False),  # the loopback default: no login, every household
+        ("127.3.2.1", None, False),
+        ("::1", None, False),
+        ("localhost", None, False),
+        ("127.0.0.1", True, True),
+        ("0.0.0.0", None, True),
+        ("::", None, True),
+        ("192.168.1.20", None, True),
+        ("teachrepeat-hub.local", None, True),  # a name may resolve to anything
+        ("192.168.1.20", True, True),
+        ("127.0.0.1", False, False),
+    ],
+)
+def test_the_dashboard_needs_a_login_off_loopback(
+    host: str, login: bool | None, needed: bool
+) -> None:
+    from server.config import Settings
+
+    settings = Settings(host=host, dashboard_login=login)
+    assert settings.dashboard_needs_login() is needed
+
+
+def test_a_dashboard_without_login_off_loopback_is_refused() -> None:
+    from server.config import Settings
+
+    with pytest.raises(ValueError, match=r"host 10\.0\.0\.2 is not a loopback address"):
+        Settings(host="10.0.0.2", dashboard_login=False).dashboard_needs_login()

@@ -6,10 +6,11 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Response
 
-from server.api.deps import PrincipalDep, ServicesDep
+from server.api.deps import HouseholdDep, ServicesDep
+from server.schemas import MAX_ID
 
 router = APIRouter(prefix="/images", tags=["images"])
-ImageId = Annotated[int, Path(ge=1, le=2**63 - 1, description="Image id.")]
+ImageId = Annotated[int, Path(ge=1, le=MAX_ID, description="Image id.")]
 
 
 @router.get(
@@ -17,5 +18,6 @@ ImageId = Annotated[int, Path(ge=1, le=2**63 - 1, description="Image id.")]
     response_class=Response,
     responses={200: {"content": {"image/jpeg": {}}, "description": "The JPEG bytes."}},
 )
-def get_image(image_id: ImageId, services: ServicesDep, _: PrincipalDep) -> Response:
-    return Response(services.repo.image_jpeg(image_id), media_type="image/jpeg")
+def get_image(image_id: ImageId, services: ServicesDep, household: HouseholdDep) -> Response:
+    """A stored image of the caller's household."""
+    return Response(services.tours.image_jpeg(image_id, household), media_type="image/jpeg")

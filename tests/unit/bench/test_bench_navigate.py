@@ -17,7 +17,8 @@ from robot_client.sim import load_plan
 from robot_client.trial import StepLog, cause, draw_trial
 from server.bench.common import wilson_interval
 from server.bench.nav_sweep import BENCH_SERVER_SETTINGS
-from server.bench.navigate import _navigation_env, _setting, _trial_list, summarise
+from server.bench.navigate import _navigation_env, _trial_list, summarise
+from server.tuning import setting_argument as _setting
 
 PLANS = Path(__file__).resolve().parents[2] / "data" / "plans"
 

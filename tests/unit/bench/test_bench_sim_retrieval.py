@@ -5,20 +5,31 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "vision"))
+from vision_testkit import index_of, scene, shifted
 
 from robot_client.sim.world import Pose
 from server.bench.sim_retrieval import (
     CONDITIONS,
     OffsetView,
+    Shot,
+    TaughtPoses,
     canonical_order,
+    navigation_params,
     offset_label,
     offset_summary,
+    pose_distance,
+    reachable,
     side_poses,
 )
 from server.cli import main
+from server.vision import extract
 
 
 @pytest.mark.slow
@@ -141,16 +152,74 @@ def test_canonical_order_places_first_then_each_traversal() -> None:
 
 
 def test_offset_summary_counts_retrieved_and_geometric() -> None:
-    def view(retrieved: bool, inliers: int) -> OffsetView:
-        return OffsetView(0, 1.0, "same", Pose(0, 0, 0), 0, retrieved, inliers)
+    def view(retrieved: bool, inliers: int, from_source: bool) -> OffsetView:
+        return OffsetView(0, 1.0, "same", Pose(0, 0, 0), 0, retrieved, inliers, 0, from_source)
 
-    views = [view(True, 30), view(True, 5), view(False, 40), view(True, 10)]
+    views = [
+        view(True, 30, True),
+        view(True, 5, False),
+        view(False, 40, True),
+        view(True, 10, False),
+    ]
     cell = offset_summary(views, 2, min_inliers=10)
     assert cell["matched_fraction"] == 0.5
     assert cell["retrieved_fraction"] == 0.75
+    assert cell["source_matched_fraction"] == 0.5  # views 0 and 2
+    assert cell["source_retrieved_fraction"] == 0.5
     assert cell["geometric_fraction"] == 0.75
     assert (cell["views"], cell["skipped"], cell["median_inliers"]) == (4, 2, 20.0)
+    assert cell["matched_ci95"][0] < 0.5 < cell["matched_ci95"][1]
     assert math.isnan(offset_summary([], 3, min_inliers=10)["matched_fraction"])
+
+
+def test_pose_distance_adds_the_heading_difference_in_metres() -> None:
+    pose = Pose(1.0, 2.0, 3.0)
+    xs, ys = [1.0, 4.0, 1.0, 1.0], [2.0, 6.0, 2.0, 2.0]
+    thetas = [3.0, 3.0, 3.0 + 0.5, -3.0]  # -3.0 is 2 pi - 6 = 0.283 rad from 3.0
+    d = pose_distance(pose, xs, ys, thetas, metres_per_radian=2.0)
+    np.testing.assert_allclose(d, [0.0, 5.0, 1.0, 2.0 * (2 * math.pi - 6.0)])
+    np.testing.assert_allclose(pose_distance(pose, xs, ys, thetas, metres_per_radian=0.0)[1:2], 5.0)
+    with pytest.raises(ValueError, match="metres_per_radian"):
+        pose_distance(pose, xs, ys, thetas, metres_per_radian=-1.0)
+
+
+def _shot(x: float, y: float, theta: float) -> Shot:
+    return Shot(np.zeros((1, 1, 3), np.uint8), x, y, theta)
+
+
+def test_the_nearest_taught_image_is_judged_by_position_and_heading() -> None:
+    """A source frame on one path, another traversal 1.2 m to its left: a camera moved 1 m to
+    the left and turned is nearest to the other traversal's frame that faces its way, and an
+    image on the spot facing away is far."""
+    tour = [
+        _shot(0.0, 0.0, 0.0),  # 0: the source, facing +x
+        _shot(0.1, 0.0, 0.0),  # 1: its neighbour on the same path
+        _shot(0.0, 1.2, 0.4),  # 2: another traversal, 1.2 m left, facing 23 degrees left
+        _shot(0.0, 1.0, math.pi),  # 3: on the camera's spot, facing back
+        _shot(0.4, 1.2, 0.4),  # 4: next frame of that traversal, 0.4 m on
+    ]
+    taught = TaughtPoses.of(tour, 0.5, 30.0)
+    camera = Pose(0.0, 1.0, 0.35)
+    assert taught.nearest(camera) == 2
+    assert taught.near(2).tolist() == [False, False, True, False, True]
+    assert taught.near(0).tolist() == [True, True, False, False, False]
+    # on the path, facing as taught, the source itself is nearest
+    assert taught.nearest(Pose(0.01, 0.0, 0.0)) == 0
+
+
+def test_navigation_params_for_the_bench() -> None:
+    nav = navigation_params("teblid", [("engine.geometric", True)])
+    assert nav.features.descriptor == nav.engine.features.descriptor == "teblid"
+    assert nav.engine.geometric
+    with pytest.raises(ValueError, match=r"engine\.features"):
+        navigation_params(None, [("features.n_features", 200)])
+    with pytest.raises(ValueError, match="no setting"):
+        navigation_params(None, [("engine.geometrik", True)])
+
+
+def test_descriptor_without_offsets_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "sim-retrieval", "--descriptor", "teblid"]) == 2
+    assert "go with --offsets" in capsys.readouterr().out
 
 
 @pytest.mark.slow
@@ -184,13 +253,34 @@ def test_sim_retrieval_offsets_on_a_short_route(tmp_path: Path) -> None:
         assert {
             "matched_fraction",
             "retrieved_fraction",
+            "source_matched_fraction",
+            "source_retrieved_fraction",
+            "nearest_is_source_fraction",
+            "reachable_fraction",
+            "faces_wall_fraction",
             "geometric_fraction",
             "views",
             "skipped",
             "median_inliers",
         } <= set(cell)
         assert cell["views"] + cell["skipped"] == 30
+        assert cell["matched_fraction"] <= cell["reachable_fraction"]
+        assert cell["matched_fraction"] <= cell["retrieved_fraction"]
     near = result["offsets"]["0_25m"]
     assert near["skipped"] == 0
     assert near["matched_fraction"] >= 0.7
     assert near["matched_fraction"] >= result["offsets"]["1m"]["matched_fraction"]
+
+
+def test_reachable_when_an_image_near_the_nearest_one_has_the_inliers() -> None:
+    """Taught images 0-2 of scenes 0-2 side by side (image k taken at x = k metres); a query
+    showing scene 1 shifted is reachable from image 1's neighbourhood, not from image 2's."""
+    idx, _ = index_of([scene(s) for s in range(3)], [0, 1, 2])
+    taught = TaughtPoses.of([_shot(float(k), 0.0, 0.0) for k in range(3)], 0.5, 30.0)
+    query = extract(shifted(scene(1), 6))
+    position = np.array([0, 1, 2])
+    camera = Pose(1.0, 0.2, 0.0)
+    assert taught.nearest(camera) == 1
+    assert reachable(idx, query, position, taught, camera, 1, 10)
+    assert not reachable(idx, query, position, taught, Pose(2.0, 0.0, 0.0), 2, 10)
+    assert not reachable(idx, query, position, taught, camera, 1, 1000)

@@ -57,6 +57,27 @@ def test_a_recording_round_trips_through_a_file(recording: TourRecording, tmp_pa
     assert all(
         s.jpeg is not None and s.jpeg[:2] == b"\xff\xd8" for s in again.steps if s.kind != "mark"
     )
+    # every image carries the simulator's true pose; a mark has none
+    assert all((s.pose is None) == (s.kind == "mark") for s in again.steps)
+
+
+def test_a_recording_of_format_1_reads_without_poses(
+    recording: TourRecording, tmp_path: Path
+) -> None:
+    import json
+
+    import numpy as np
+
+    path = tmp_path / "tour.npz"
+    recording.save(path)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files if k != "pose"}
+    header = json.loads(bytes(arrays["header"]).decode())
+    arrays["header"] = np.frombuffer(json.dumps({**header, "format": 1}).encode(), np.uint8)
+    np.savez(path, **arrays)
+    old = TourRecording.load(path)
+    assert all(s.pose is None for s in old.steps)
+    assert [s.jpeg for s in old.steps] == [s.jpeg for s in recording.steps]
 
 
 def test_a_file_that_is_not_a_recording_is_refused(tmp_path: Path) -> None:

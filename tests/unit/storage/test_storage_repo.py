@@ -149,3 +149,172 @@ def test_any_tour_name_round_trips(name: str) -> None:
         row = repo.add_tour(name)
     assert repo.tour(row.id).name == name
     assert repo.tour_by_name(name) == row
+
+
+def test_a_database_from_before_households_upgrades_losing_nothing(tmp_path: Path) -> None:
+    """Schema 2 (no households) -> newest: every robot, tour, place, edge, image, teaching and
+    navigation row is kept, all of it in household 1, and every reference still holds."""
+    path = tmp_path / "old.sqlite"
+    conn = sqlite3.connect(path, isolation_level=None)
+    conn.execute("PRAGMA foreign_keys = ON")
+    import sqlite_utils
+
+    assert migrate(sqlite_utils.Database(conn), upto=2) == 2
+    x = conn.execute
+    x("INSERT INTO robots VALUES ('rover', 'hash-rover', 1.0), ('mop', 'hash-mop', 2.0)")
+    x(
+        "INSERT INTO tours (id, name, created_at, weights, weights_images) "
+        "VALUES (7, 'home', 3.0, x'00', 4)"
+    )
+    x("INSERT INTO locations VALUES (1, 7, 'hall', 4.0), (2, 7, 'kitchen', 5.0)")
+    x("INSERT INTO edges VALUES (1, 7, 1, 2, 6.0)")
+    jpeg = make_jpeg()
+    for k, owner in enumerate(("location_id", "edge_id", "edge_id", "pending_robot")):
+        value = {"location_id": 1, "edge_id": 1, "pending_robot": "rover"}[owner]
+        x(
+            f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg) "
+            "VALUES (7, ?, ?, ?, 0.2, 0.0, 64, 48, ?)",
+            (value, k, float(k), jpeg),
+        )
+    x("INSERT INTO teaching VALUES ('rover', 7, 2, 3.0, 1.0)")
+    x(
+        "INSERT INTO navigation (robot, tour_id, task_id, goal_location_id, state, started_at) "
+        "VALUES ('mop', 7, 1, 2, 'underway', 1.0)"
+    )
+    before = _rows(conn, ("locations", "edges", "images", "teaching", "navigation"))
+    conn.close()
+
+    repo = Repo(path)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0]
+        assert _rows(repo.db.conn, before) == before  # later migrations only add columns
+        assert [(t.id, t.name, t.household_id) for t, *_ in repo.tours()] == [(7, "home", 1)]
+        assert repo.tours(1)[0][1:] == (2, 1, 3)  # places, edges, stored images
+        assert repo.tour_weights(7) == (b"\x00", 4)
+        assert [(r.name, r.household_id, r.token_active) for r in repo.robots()] == [
+            ("mop", 1, True),
+            ("rover", 1, True),
+        ]
+        assert repo.robot_by_token_hash("hash-rover") == ("rover", 1, "default")
+        assert repo.household(1).name == "default" and not repo.household(1).has_login
+        assert repo.image_household(1) == 1
+        assert repo.db.execute("PRAGMA foreign_keys").fetchone()[0] == 1
+        assert repo.db.execute("PRAGMA foreign_key_check").fetchall() == []
+        assert repo.integrity_ok()
+        with pytest.raises(sqlite3.IntegrityError), repo.transaction():  # references still hold
+            repo.db.conn.execute("DELETE FROM locations WHERE id = 1")
+    finally:
+        repo.close()
+
+
+def _rows(
+    conn: sqlite3.Connection, tables: tuple[str, ...] | dict[str, object]
+) -> dict[str, object]:
+    """Every row of ``tables``: the columns they had then (a dict from an earlier call) or
+    all of them."""
+    out: dict[str, object] = {}
+    for table in tables:
+        columns = "*"
+        if isinstance(tables, dict):
+            columns = ", ".join(tables[table][0])  # type: ignore[index]
+        cur = conn.execute(f"SELECT {columns} FROM {table} ORDER BY 1")
+        out[table] = ([d[0] for d in cur.description], cur.fetchall())
+    return out
+
+
+def test_a_schema_3_database_upgrades_losing_nothing(tmp_path: Path) -> None:
+    """Schema 3 (households) -> newest: every row of every table is kept as it was; images
+    gain their pose and distinctiveness (NULL: unknown), tours the count they cover."""
+    import sqlite_utils
+
+    path = tmp_path / "three.sqlite"
+    conn = sqlite3.connect(path, isolation_level=None)
+    conn.execute("PRAGMA foreign_keys = ON")
+    assert migrate(sqlite_utils.Database(conn), upto=3) == 3
+    x = conn.execute
+    x("INSERT INTO households VALUES (2, 'flat', 'argon-hash', 1.0)")
+    x("INSERT INTO robots VALUES ('rover', 2, 'hash-rover', 1.0, 1.0)")
+    x("INSERT INTO tours VALUES (7, 2, 'home', 3.0, x'0001', 3)")
+    x("INSERT INTO locations VALUES (1, 7, 'hall', 4.0), (2, 7, 'kitchen', 5.0)")
+    x("INSERT INTO edges VALUES (1, 7, 1, 2, 6.0)")
+    jpeg = make_jpeg()
+    for k, owner in enumerate(("location_id", "edge_id", "edge_id", "pending_robot")):
+        value = {"location_id": 1, "edge_id": 1, "pending_robot": "rover"}[owner]
+        x(
+            f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg, "
+            "features) VALUES (7, ?, ?, ?, 0.2, 0.0, 64, 48, ?, x'02')",
+            (value, k, float(k), jpeg),
+        )
+    x("INSERT INTO teaching VALUES ('rover', 7, 2, 3.0, 1.0)")
+    x(
+        "INSERT INTO navigation (robot, tour_id, task_id, goal_location_id, state, started_at, "
+        "belief, belief_images) VALUES ('rover', 7, 1, 2, 'underway', 1.0, x'00', 3)"
+    )
+    x("INSERT INTO logins VALUES ('login-hash', 2, 1.0, 9.0)")
+    x("INSERT INTO audit (at, actor, action, target, status) VALUES (1.0, 'admin', 'a', 't', 200)")
+    tables = sqlite_utils.Database(conn).table_names()
+    before = _rows(conn, tuple(t for t in tables if t != "schema_migrations"))
+    conn.close()
+
+    repo = Repo(path)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 4
+        assert _rows(repo.db.conn, before) == before
+        graph = repo.graph(7)
+        assert graph.n_images == 3 and graph.image_pose is None and graph.image_entropy is None
+        assert repo.entropy_images(7) is None
+        assert repo.tour_weights(7) == (b"\x00\x01", 3)
+        assert repo.db.execute("PRAGMA foreign_key_check").fetchall() == []
+        assert repo.integrity_ok()
+    finally:
+        repo.close()
+
+
+def test_poses_and_entropies_round_trip_in_canonical_order(repo: Repo) -> None:
+    """Poses come with the images that have them (NaN rows for the others, also on the copy a
+    place gets of a path's last frame), entropies once set for the whole tour; both in the
+    graph's canonical order (spin images by place, then edge images)."""
+    with repo.transaction():
+        tour = repo.add_tour("home").id
+        repo.add_robot("rover", "hash")
+        hall = repo.add_location(tour, "hall")
+        kitchen = repo.add_location(tour, "kitchen")
+        spin = add(repo, tour, location_id=hall)
+        frames = [add(repo, tour, pending_robot="rover", pose=(k, 0.0, 0.1)) for k in (1.0, 2.0)]
+        copy = repo.copy_last_pending_to_location("rover", kitchen)
+        repo.move_pending_to_edge("rover", repo.add_edge(tour, hall, kitchen))
+    graph = repo.graph(tour)
+    assert graph.image_ids.tolist() == [spin, copy, *frames]
+    assert graph.image_pose is not None and np.isnan(graph.image_pose[0]).all()
+    assert graph.image_pose[1:].tolist() == [[2.0, 0.0, 0.1], [1.0, 0.0, 0.1], [2.0, 0.0, 0.1]]
+    assert not graph.has_poses and graph.image_entropy is None
+    repo.set_entropies(tour, [(i, 0.5 * k) for k, i in enumerate(graph.image_ids.tolist())])
+    graph = repo.graph(tour)
+    assert graph.has_entropy and graph.image_entropy is not None
+    assert graph.image_entropy.tolist() == [0.0, 0.5, 1.0, 1.5]
+    assert repo.entropy_images(tour) == 4
+
+
+def test_tour_names_are_unique_per_household(repo: Repo) -> None:
+    with repo.transaction():
+        other = repo.add_household("other", None).id
+        repo.add_tour("home")
+        repo.add_tour("home", other)
+        with pytest.raises(sqlite3.IntegrityError):
+            repo.add_tour("home", other)
+
+
+def test_old_audit_entries_and_expired_logins_are_forgotten(repo: Repo) -> None:
+    with repo.transaction():
+        household = repo.add_household("home", None).id
+        repo.add_login("old", household, expires_at=100.0)
+        repo.add_login("live", household, expires_at=300.0)
+    for _ in range(2):
+        repo.add_audit(
+            actor="admin", action="POST /households", target="/", status=201, address=None
+        )
+    with repo.transaction():
+        repo.db.conn.execute("UPDATE audit SET at = 50.0 WHERE id = 1")
+    assert repo.forget_before(audit_before=60.0, now=200.0) == (1, 1)
+    assert [e.id for e in repo.audit()] == [2]
+    assert repo.login("live") is not None and repo.login("old") is None

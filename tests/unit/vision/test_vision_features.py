@@ -104,7 +104,7 @@ def test_rejects_bad_input_with_a_helpful_message() -> None:
     with pytest.raises(ValueError, match="uint8"):
         extract(np.zeros((10, 10), np.float32))
     with pytest.raises(ValueError, match="descriptor"):
-        FeatureParams(descriptor="akaze")  # type: ignore[arg-type]
+        FeatureParams(descriptor="surf")  # type: ignore[arg-type]
 
 
 def test_round_trip_of_real_features() -> None:
@@ -392,13 +392,79 @@ def test_sift_bytes_are_opencv_s_float_values_exactly() -> None:
     assert np.all(np.abs(norms * p.descriptor_scale - 1.0) < 0.05)
 
 
-@pytest.mark.parametrize("kind", ["orb_fast", "sift"])
+@pytest.mark.parametrize("kind", ["orb_fast", "sift", "akaze", "akaze_upright", "brisk"])
 def test_own_detector_kinds_keep_at_most_n_features_strongest_first(kind: DescriptorKind) -> None:
-    few = extract(scene(1), FeatureParams(descriptor=kind, n_features=30))
-    many = extract(scene(1), FeatureParams(descriptor=kind, n_features=200))
+    # scene 3: every detector finds more than 30 keypoints there (AKAZE, which has no budget
+    # of its own, finds 23 in scene 1)
+    few = extract(scene(3), FeatureParams(descriptor=kind, n_features=30))
+    many = extract(scene(3), FeatureParams(descriptor=kind, n_features=200))
     assert 25 <= few.n_keypoints <= 30 < many.n_keypoints <= 200
-    if kind == "sift":  # SIFT keeps the best by response: the 30 are the 200's first 30
+    if kind != "orb_fast":  # these keep the best by response: the 30 are the 200's first 30
         # (as sets: the synthetic scene has keypoints of equal response)
         assert {tuple(x) for x in few.keypoints} == {tuple(x) for x in many.keypoints[:30]}
     blank = np.full((240, 320, 3), 90, np.uint8)
     assert extract(blank, FeatureParams(descriptor=kind)).n_keypoints == 0
+
+
+def test_teblid_describes_the_harris_corners_of_grad36() -> None:
+    """``teblid`` is a descriptor only: its keypoints are grad36's Harris corners (the same
+    16 px border), and its bytes are OpenCV's TEBLID at those corners, upright."""
+    img = scene(7)
+    g36 = extract(img, FeatureParams())
+    teb = extract(img, FeatureParams(descriptor="teblid"))
+    np.testing.assert_array_equal(teb.keypoints, g36.keypoints)
+    _, grey = normalise(img, FeatureParams(descriptor="teblid"))
+    kps = [cv2.KeyPoint(float(x), float(y), 31.0) for x, y in g36.keypoints[:10]]
+    teblid = cv2.xfeatures2d.TEBLID.create(1.0, cv2.xfeatures2d.TEBLID_SIZE_256_BITS)
+    _, ref = teblid.compute(grey, kps)
+    np.testing.assert_array_equal(teb.descriptors[:10], ref)
+
+
+def test_brisk_is_the_same_on_concurrent_threads() -> None:
+    """BRISK's detector is kept per thread (it is dear to create): extraction on several
+    threads at once gives what it gives alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    p = FeatureParams(descriptor="brisk")
+    images = [scene(s) for s in range(6)]
+    alone = [extract(im, p) for im in images]
+    with ThreadPoolExecutor(3) as pool:
+        together = list(pool.map(lambda im: extract(im, p), images * 2))
+    assert together == alone + alone
+
+
+def test_a_missing_contrib_class_says_which_package_to_install(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delattr(cv2.xfeatures2d, "AKAZE")
+    monkeypatch.delattr(cv2, "AKAZE", raising=False)
+    with pytest.raises(RuntimeError, match="opencv-contrib-python-headless"):
+        extract(scene(1), FeatureParams(descriptor="akaze"))
+
+
+def test_opencv_is_the_contrib_build_and_alone() -> None:
+    """The project depends on opencv-contrib-python-headless (AKAZE, BRISK, TEBLID); another
+    OpenCV wheel installed beside it would overwrite the same ``cv2`` package."""
+    from importlib import metadata
+
+    installed = {
+        name
+        for name in (
+            "opencv-python",
+            "opencv-python-headless",
+            "opencv-contrib-python",
+            "opencv-contrib-python-headless",
+        )
+        if _installed(metadata, name)
+    }
+    assert installed == {"opencv-contrib-python-headless"}
+
+
+def _installed(metadata: object, name: str) -> bool:
+    import importlib.metadata as md
+
+    try:
+        md.distribution(name)
+    except md.PackageNotFoundError:
+        return False
+    return True

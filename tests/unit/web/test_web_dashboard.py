@@ -18,7 +18,9 @@ from pydantic import SecretStr
 
 from server import schemas
 from server.services.container import Services
-from web.dashboard import BEHAVIOUR_COLOURS, NONE, Dashboard
+from web.dashboard import Dashboard
+from web.imagery import BEHAVIOUR_COLOURS
+from web.panels import NONE
 from web.publisher import Publisher
 
 
@@ -52,8 +54,8 @@ def teach(
     services: Services, robot: str = "rover", places: tuple[str, ...] = ("a", "b", "c")
 ) -> int:
     """Register ``robot`` and teach a line of places, 4 frames per path; returns the tour id."""
-    services.robots.register(schemas.RobotCreate(name=robot))
-    tour = services.tours.create(schemas.TourCreate(name="home"))
+    services.robots.register(schemas.RobotCreate(name=robot), 1)
+    tour = services.tours.create(schemas.TourCreate(name="home"), 1)
     services.teaching.start(robot, schemas.TeachStart(tour=tour.id))
     t, seed = 0.0, 0
     for k, name in enumerate(places):
@@ -74,7 +76,7 @@ def click(button: object) -> None:
 
 def test_shows_the_robots_the_tour_and_its_places(services: Services, dash: Dashboard) -> None:
     tour_id = teach(services)
-    services.robots.register(schemas.RobotCreate(name="scout"))
+    services.robots.register(schemas.RobotCreate(name="scout"), 1)
     snap = dash.refresh()
     c = dash.controls
     assert snap is not None and c is not None
@@ -182,7 +184,7 @@ def test_teaching_controls_mark_finish_and_abort(services: Services, dash: Dashb
 
 def test_selecting_another_robot_shows_it(services: Services, dash: Dashboard) -> None:
     teach(services)
-    services.robots.register(schemas.RobotCreate(name="scout"))
+    services.robots.register(schemas.RobotCreate(name="scout"), 1)
     dash.refresh()
     c = dash.controls
     assert c is not None
@@ -244,3 +246,173 @@ def test_an_empty_server_shows_placeholders(services: Services, dash: Dashboard)
     assert snap.robot is None and snap.graph is None
     assert c.robot.value == NONE and c.goal.options == (NONE,)
     assert "No robot registered yet" in c.status.content
+
+
+# --- the household's dashboard: its controls act only within it ------------------------------
+
+
+def test_a_household_dashboard_shows_and_drives_only_that_household(
+    services: Services,
+) -> None:
+    ids, tours = {}, {}
+    for name in ("alpha", "beta"):
+        ids[name] = services.households.create(schemas.HouseholdCreate(name=name)).id
+        services.robots.register(schemas.RobotCreate(name=f"{name}-rover"), ids[name])
+        tours[name] = services.tours.create(schemas.TourCreate(name=f"{name}-home"), ids[name]).id
+    dash = Dashboard(services, household=ids["alpha"], port=0)
+    dash.start()
+    dash.publisher.stop()
+    try:
+        snap = dash.refresh()
+        c = dash.controls
+        assert c is not None and c.robot.options == ("alpha-rover",)
+        assert snap is not None and snap.robots == ("alpha-rover",)
+        assert [name for _, name in snap.tours] == ["alpha-home"]
+        c.tour.value = f"beta-home (#{tours['beta']})"  # forged: not listed, so not shown
+        snap = dash.refresh()
+        assert snap is not None and snap.tour_name == "alpha-home"
+        c.robot.value = "beta-rover"  # as a forged GUI message would set it
+        c.place_name.value = "kitchen"
+        click(c.mark)
+        assert "no robot named 'beta-rover' in this household" in c.message.content
+        click(c.stop)
+        assert "no robot named 'beta-rover'" in c.message.content
+        c.robot.value = "alpha-rover"
+        click(c.stop)
+        assert "has no navigation underway" in c.message.content  # reached the service
+    finally:
+        dash.stop()
+    rows = [(a.actor, a.action, a.target, a.status) for a in services.repo.audit(limit=3)][::-1]
+    assert rows == [
+        ("household:alpha", "dashboard mark", "beta-rover", 404),
+        ("household:alpha", "dashboard stop", "beta-rover", 404),
+        ("household:alpha", "dashboard stop", "alpha-rover", 409),
+    ]
+
+
+def test_names_are_shown_as_text_never_as_html_or_links(
+    services: Services, dash: Dashboard
+) -> None:
+    """viser renders raw HTML inside markdown unsanitised: a tour named like a style sheet or
+    a link must show as those characters, not restyle the page or become a link."""
+    services.robots.register(schemas.RobotCreate(name="rover"), 1)
+    name = "<style>*{display:none}</style> [win](https://example.org) & co"
+    services.tours.create(schemas.TourCreate(name=name), 1)
+    dash.refresh()
+    c = dash.controls
+    assert c is not None
+    assert "<style>" not in c.status.content and "[win](" not in c.status.content
+    assert "&lt;style&gt;*{display:none}&lt;/style&gt; \\[win\\](https" in c.status.content
+    assert "&amp; co" in c.status.content
+    c.goal.value = "<b>nowhere</b>"  # a forged goal: quoted back in the refusal
+    click(c.go)
+    assert "<b>" not in c.message.content and "&lt;b&gt;nowhere" in c.message.content
+
+
+# --- what a new user found weak, and the Timeline -------------------------------------------
+
+
+def test_an_idle_robot_says_what_the_others_do_and_a_busy_one_is_shown_first(
+    services: Services, dash: Dashboard
+) -> None:
+    teach(services)  # rover
+    services.robots.register(schemas.RobotCreate(name="scout"), 1)
+    services.navigation.goto("scout", schemas.GotoRequest(location="b"))
+    snap = dash.refresh()
+    c = dash.controls
+    assert snap is not None and c is not None
+    assert c.robot.value == "scout"  # nobody picked a robot: the one navigating is shown
+    assert "**scout** is **navigating** - tour *home*" in c.status.content
+    c.robot.value = "rover"  # a user picks the idle one
+    dash.refresh()
+    assert c.robot.value == "rover"
+    assert "**rover** is **idle**" in c.status.content and "not bound" not in c.status.content
+    assert "Also: **scout** is navigating to b (pick it above to watch)." in c.status.content
+
+
+def test_the_teaching_controls_show_only_while_teaching(
+    services: Services, dash: Dashboard
+) -> None:
+    teach(services)
+    dash.refresh()
+    c = dash.controls
+    assert c is not None
+    assert not any(h.visible for h in c.teach_inputs) and "Not teaching" in c.teaching.content
+    services.teaching.start("rover", schemas.TeachStart(tour=1))
+    dash.refresh()
+    assert all(h.visible for h in c.teach_inputs)
+
+
+def test_plots_wait_for_frames_and_the_map_shows_the_robot(
+    services: Services, dash: Dashboard
+) -> None:
+    teach(services)
+    dash.refresh()
+    c = dash.controls
+    assert c is not None
+    assert not any(h.visible for h in c.plots) and "appear with the first frame" in (
+        c.plots_note.content
+    )
+    empty_map = c.map.image.copy()
+    services.navigation.goto("rover", schemas.GotoRequest(location="c"))
+    for k in range(3):
+        services.frame("rover", make_jpeg(100 + k), meta(10.0 + 0.1 * k))
+    dash.refresh()
+    assert c.over_time.visible and c.plots_note.content == ""
+    red = (c.map.image == (220, 38, 38)).all(axis=2)
+    assert red.any() and not (empty_map == (220, 38, 38)).all(axis=2).any()
+
+
+def test_the_timeline_opens_the_current_task_and_a_recording(
+    services: Services, dash: Dashboard
+) -> None:
+    from web.timeline import CURRENT
+
+    teach(services)
+    dash.refresh()
+    services.navigation.goto("rover", schemas.GotoRequest(location="c", record=True))
+    for k in range(4):
+        services.frame("rover", make_jpeg(100 + k), meta(10.0 + 0.1 * k))
+    tl = dash.timeline
+    c = tl.controls
+    assert c is not None
+    c.source.value = CURRENT
+    tl.open_selected()
+    assert "rover's current task: the last 4 frames" in c.note.content
+    assert c.frame.max == 3 and not c.frame.disabled
+    c.frame.value = 2
+    assert "**Belief**" in c.belief.content and "Vote mass" in c.text.content
+    services.navigation.stop("rover")
+    services.recordings.wait_idle()
+    dash.refresh()  # lists the recording
+    (name,) = [o for o in c.source.options if o != CURRENT]
+    c.source.value = name
+    tl.open_selected()
+    assert "rover's task to c" in c.note.content and "4 frames" in c.note.content
+    c.frame.value = 3
+    assert tl.source is not None and len(tl.source.frames) == 4
+    frame = tl.source.frames[3]
+    assert frame.belief is not None
+    assert f"entropy {frame.belief['entropy']:.2f} nats" in c.text.content
+    c.source.value = "nothing.mcap"
+    assert "no recording" in tl.open_selected()
+
+
+def test_a_household_timeline_lists_its_own_recordings_only(services: Services) -> None:
+    ids = {}
+    for name in ("alpha", "beta"):
+        ids[name] = services.households.create(schemas.HouseholdCreate(name=name)).id
+        services.robots.register(schemas.RobotCreate(name=f"{name}-rover"), ids[name])
+        services.recordings.store.new_path(ids[name], f"{name}-rover", 1, 1, 1_795_680_000.0)
+    dash = Dashboard(services, household=ids["alpha"], port=0)
+    dash.start()
+    dash.publisher.stop()
+    try:
+        dash.refresh()
+        c = dash.timeline.controls
+        assert c is not None
+        assert [o for o in c.source.options if "rover" in o] == [
+            "alpha-rover.tour1.20261126-080000.task1.mcap"
+        ]
+    finally:
+        dash.stop()

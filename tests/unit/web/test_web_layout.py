@@ -12,15 +12,9 @@ from server import schemas
 from server.domain import Edge, Location, TourGraph
 from server.errors import Conflict
 from server.imaging import encode_jpeg
-from web.dashboard import (
-    belief_colors,
-    decode_rgb,
-    error_text,
-    graph_layout,
-    has_odometry,
-    integrate_edge,
-    side_by_side,
-)
+from server.layout import graph_layout, has_odometry, integrate_edge
+from web.imagery import belief_colors, decode_rgb, side_by_side
+from web.panels import error_text
 
 
 def edge(source: int, target: int, n: int, *, v: float = 0.5, w: float = 0.0) -> Edge:
@@ -117,4 +111,41 @@ def test_error_text_shows_domain_and_validation_messages() -> None:
     with pytest.raises(ValidationError) as info:
         schemas.LocationMark(name="   ")
     text = error_text(info.value)
-    assert text.startswith("invalid input - name:") and "at least 1 character" in text
+    assert text.startswith("invalid input - name:") and "white space" in text
+
+
+def test_the_view_fits_the_whole_graph_on_a_narrow_canvas() -> None:
+    import math
+
+    from web.scene import MARGIN, fit_view
+
+    graph = TourGraph(places("a", "b", "c"), (edge(0, 1, 40), edge(1, 2, 40, w=0.4)))
+    layout = graph_layout(graph)
+    fov = math.radians(75)
+    for aspect in (0.4, 1.0, 2.0):
+        view = fit_view(layout, aspect=aspect, fov=fov)
+        height = view.eye[2]
+        xy = np.concatenate([layout.places[:, :2], *[p[:, :2] for p in layout.edge_points]])
+        rel = xy - np.asarray(view.look[:2])
+        across = np.abs(rel @ view.right[:2]).max()
+        along = np.abs(rel @ view.down[:2]).max()
+        # every point within the canvas, seen from the camera's height (nearly from above)
+        assert across <= height * math.tan(fov / 2) * aspect
+        assert along <= height * math.tan(fov / 2) * (1 + 0.5 * (MARGIN - 1))
+    assert fit_view(layout, aspect=0.4).eye[2] > fit_view(layout, aspect=2.0).eye[2]
+
+
+def test_the_top_down_map_draws_places_paths_and_the_robot() -> None:
+    from web.imagery import top_down
+
+    graph = TourGraph(places("a", "b"), (edge(0, 1, 10),))
+    layout = graph_layout(graph)
+    plain = top_down(graph, layout, size=(200, 120))
+    assert plain.shape == (120, 200, 3)
+    mid = layout.edge_points[0][5]
+    shown = top_down(graph, layout, position=mid, goal="b", size=(200, 120))
+    red = (shown == (220, 38, 38)).all(axis=2)
+    green = (shown == (22, 163, 74)).all(axis=2)
+    assert red.any() and green.any() and not (plain == (220, 38, 38)).all(axis=2).any()
+    _, xs = np.nonzero(red)
+    assert 60 < xs.mean() < 140  # halfway between the two places

@@ -1,0 +1,278 @@
+"""Camera imagery of the dashboard: belief colours, decoded frames, captioned tiles side by
+side, the strip of a task's behaviours, and the top-down map of the taught paths.
+
+Pure drawing (NumPy and OpenCV) on RGB ``(h, w, 3)`` uint8 images; no viser.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from server.belief.mcl import MclEstimate
+    from server.domain import TourGraph
+    from server.layout import GraphLayout
+    from server.session import Segment
+
+FloatArray = npt.NDArray[np.float64]
+ImageArray = npt.NDArray[np.uint8]
+
+PANEL_IMAGE_HEIGHT = 200
+"""Height (px) each image is scaled to in the side-by-side camera / best match view."""
+
+
+_STOPS = np.array([[96, 108, 128], [66, 135, 245], [255, 170, 0], [220, 38, 38]], dtype=np.float64)
+
+
+def belief_colors(p: npt.ArrayLike) -> ImageArray:
+    """``(n, 3)`` uint8 colours for probabilities ``p`` in [0, 1]: slate (none) through blue
+    and amber to red (all the mass). A square root makes small masses visible."""
+    t = np.sqrt(np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0)) * (len(_STOPS) - 1)
+    lo = np.minimum(np.floor(t).astype(np.int64), len(_STOPS) - 2)
+    frac = (t - lo)[..., None]
+    out = _STOPS[lo] * (1 - frac) + _STOPS[lo + 1] * frac
+    return np.round(out).astype(np.uint8)
+
+
+def decode_rgb(jpeg: bytes | None) -> ImageArray | None:
+    """RGB ``(h, w, 3)`` uint8 of JPEG bytes (cv2), or None when they do not decode."""
+    if not jpeg:
+        return None
+    bgr = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        return None
+    return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+
+def placeholder(text: str, *, width: int = 320, height: int = PANEL_IMAGE_HEIGHT) -> ImageArray:
+    """A dark tile with ``text`` in the middle."""
+    img = np.full((height, width, 3), 38, dtype=np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (tw, th), _ = cv2.getTextSize(text, font, 0.55, 1)
+    org = (max(4, (width - tw) // 2), (height + th) // 2)
+    cv2.putText(img, text, org, font, 0.55, (170, 176, 190), 1, cv2.LINE_AA)
+    return img
+
+
+def captioned(image: ImageArray | None, caption: str, *, height: int) -> ImageArray:
+    """``image`` scaled to ``height`` with a caption bar on top (a placeholder when None)."""
+    if image is None:
+        tile = placeholder("no image", width=int(height * 4 / 3), height=height)
+    else:
+        h, w = image.shape[:2]
+        width = max(1, round(w * height / h))
+        tile = np.asarray(
+            cv2.resize(image, (width, height), interpolation=cv2.INTER_LINEAR), dtype=np.uint8
+        )
+    bar = np.full((26, tile.shape[1], 3), 24, dtype=np.uint8)
+    cv2.putText(
+        bar, caption, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (235, 235, 240), 1, cv2.LINE_AA
+    )
+    return np.ascontiguousarray(np.concatenate([bar, tile], axis=0))
+
+
+def side_by_side(
+    left: ImageArray | None,
+    right: ImageArray | None,
+    captions: tuple[str, str],
+    *,
+    height: int = PANEL_IMAGE_HEIGHT,
+) -> ImageArray:
+    """The two images at the same height next to each other, each with its caption."""
+    a = captioned(left, captions[0], height=height)
+    b = captioned(right, captions[1], height=height)
+    gap = np.full((a.shape[0], 6, 3), 255, dtype=np.uint8)
+    return np.ascontiguousarray(np.concatenate([a, gap, b], axis=1))
+
+
+BEHAVIOUR_COLOURS: dict[str, tuple[int, int, int]] = {
+    "follow": (37, 99, 235),
+    "leave": (14, 165, 233),
+    "search": (234, 179, 8),
+    "explore": (168, 85, 247),
+    "unstick": (220, 38, 38),
+    "backoff": (249, 115, 22),
+    "escape": (190, 24, 93),
+    "dock": (22, 163, 74),
+    "place-dock": (132, 204, 22),
+    "settle": (13, 148, 136),
+    "stand": (148, 163, 184),
+}
+"""RGB colour of each behaviour in the dashboard's strip (server.navigation.BEHAVIOURS)."""
+
+
+def behaviour_strip(timeline: Sequence[Segment], *, width: int = 540) -> ImageArray:
+    """The current task's behaviours over time as a coloured strip (robot seconds from the
+    task's first frame along x), with a legend of the behaviours it shows and their share."""
+    bar_h, legend_h = 22, 22
+    img = np.full((bar_h + 16 + legend_h, width, 3), 255, dtype=np.uint8)
+    if not timeline:
+        cv2.putText(
+            img,
+            "behaviours: no task yet",
+            (6, 16),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.45,
+            (90, 90, 90),
+            1,
+            cv2.LINE_AA,
+        )
+        return img
+    t0 = timeline[0].t0
+    span = max(timeline[-1].t1 - t0, 1e-6)
+    share: dict[str, float] = {}
+    for seg in timeline:
+        x0 = int((seg.t0 - t0) / span * (width - 1))
+        x1 = max(x0 + 1, int((seg.t1 - t0) / span * (width - 1)) + 1)
+        img[:bar_h, x0:x1] = BEHAVIOUR_COLOURS.get(seg.behaviour, (60, 60, 60))
+        share[seg.behaviour] = share.get(seg.behaviour, 0.0) + seg.t1 - seg.t0 + 0.1
+    for k in range(0, int(span) + 1, max(1, int(span) // 6 or 1)):
+        x = int(k / span * (width - 1))
+        cv2.putText(
+            img,
+            f"{k}s",
+            (min(x, width - 30), bar_h + 12),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.35,
+            (90, 90, 90),
+            1,
+            cv2.LINE_AA,
+        )
+    x = 4
+    total = sum(share.values())
+    for name, t in sorted(share.items(), key=lambda kv: -kv[1]):
+        label = f"{name} {t / total:.0%}"
+        cv2.rectangle(
+            img,
+            (x, bar_h + 20),
+            (x + 10, bar_h + 30),
+            BEHAVIOUR_COLOURS.get(name, (60, 60, 60)),
+            -1,
+        )
+        cv2.putText(
+            img,
+            label,
+            (x + 13, bar_h + 30),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.38,
+            (40, 40, 40),
+            1,
+            cv2.LINE_AA,
+        )
+        x += 20 + 7 * len(label)
+        if x > width - 60:
+            break
+    return img
+
+
+MAP_SIZE = (460, 300)
+"""Width and height (px) of the top-down map."""
+_MAP_BG = (250, 250, 252)
+_PATH_GREY = (170, 178, 190)
+_ROBOT = (220, 38, 38)
+_TRAIL = (244, 114, 182)
+_GOAL = (22, 163, 74)
+_TEXT = (40, 44, 52)
+
+
+class MapFrame:
+    """How layout coordinates map to the pixels of a top-down map of ``size`` (x right, y up;
+    the drawing's aspect kept, a margin for the labels)."""
+
+    def __init__(self, layout: GraphLayout, size: tuple[int, int], margin: int = 26) -> None:
+        xy = np.concatenate([layout.places[:, :2], *[p[:, :2] for p in layout.edge_points]])
+        lo = xy.min(axis=0) if len(xy) else np.zeros(2)
+        hi = xy.max(axis=0) if len(xy) else np.ones(2)
+        span = np.maximum(hi - lo, 1e-6)
+        w, h = size
+        self.scale = float(min((w - 2 * margin) / span[0], (h - 2 * margin) / span[1]))
+        self.offset = np.array([w, h]) / 2 - self.scale * (lo + hi) / 2 * np.array([1, -1])
+        self.size = size
+
+    def px(self, xy: npt.ArrayLike) -> npt.NDArray[np.int32]:
+        """``(..., 2)`` pixel coordinates of layout points ``(..., 2+)``."""
+        p = np.asarray(xy, dtype=np.float64)[..., :2] * np.array([1.0, -1.0])
+        return np.round(p * self.scale + self.offset).astype(np.int32)
+
+
+def top_down(
+    graph: TourGraph,
+    layout: GraphLayout,
+    *,
+    states: npt.ArrayLike | None = None,
+    position: npt.ArrayLike | None = None,
+    trail: npt.ArrayLike | None = None,
+    goal: str | None = None,
+    size: tuple[int, int] = MAP_SIZE,
+    metric: MclEstimate | None = None,
+) -> ImageArray:
+    """The taught paths seen from above (layout metres), each place named, paths and places
+    coloured by their belief ``states`` (``(n_states,)`` b(s), optional), the robot's most
+    likely ``position`` (a layout point) as a red dot, the ``trail`` of earlier positions
+    (``(k, 2+)``) as a line, and the ``goal`` place ringed in green. ``metric``: Monte-Carlo
+    localisation's pose (a layout drawn from the taught poses is in its frame) as a blue
+    arrow in a circle of its spread, over its particles."""
+    w, h = size
+    img = np.full((h, w, 3), _MAP_BG, dtype=np.uint8)
+    if graph.n_locations == 0:
+        cv2.putText(img, "no places taught yet", (10, h // 2), 0, 0.5, _TEXT, 1, cv2.LINE_AA)
+        return img
+    frame = MapFrame(layout, size)
+    b = None if states is None else np.asarray(states, dtype=np.float64)
+    colours = None if b is None or len(b) != graph.n_states else belief_colors(b)
+    for j, e in enumerate(graph.edges):
+        pts = [layout.places[e.source], *layout.edge_points[j], layout.places[e.target]]
+        colour = (
+            _PATH_GREY if colours is None else tuple(int(c) for c in colours[graph.n_locations + j])
+        )
+        cv2.polylines(img, [frame.px(np.asarray(pts))], False, colour, 2, cv2.LINE_AA)
+    if trail is not None and len(np.asarray(trail)) > 1:
+        cv2.polylines(img, [frame.px(np.asarray(trail))], False, _TRAIL, 2, cv2.LINE_AA)
+    radius = 6
+    for k, loc in enumerate(graph.locations):
+        c = frame.px(layout.places[k])
+        colour = (96, 108, 128) if colours is None else tuple(int(x) for x in colours[k])
+        cv2.circle(img, (int(c[0]), int(c[1])), radius, colour, -1, cv2.LINE_AA)
+        if loc.name == goal:
+            cv2.circle(img, (int(c[0]), int(c[1])), radius + 4, _GOAL, 2, cv2.LINE_AA)
+        _label(img, loc.name, (int(c[0]), int(c[1]) + radius + 13))
+    if position is not None:
+        c = frame.px(np.asarray(position))
+        cv2.circle(img, (int(c[0]), int(c[1])), radius + 2, (255, 255, 255), -1, cv2.LINE_AA)
+        cv2.circle(img, (int(c[0]), int(c[1])), radius, _ROBOT, -1, cv2.LINE_AA)
+    if metric is not None and layout.odometry:
+        _draw_metric(img, frame, metric)
+    return img
+
+
+_METRIC = (37, 99, 235)
+
+
+def _draw_metric(img: ImageArray, frame: MapFrame, est: MclEstimate) -> None:
+    """Monte-Carlo localisation on the map: particles as dots, the pose as an arrow, its
+    spread (``std_m``) as a circle."""
+    for p in frame.px(est.cloud[:, :2]) if len(est.cloud) else ():
+        cv2.circle(img, (int(p[0]), int(p[1])), 1, (147, 197, 253), -1)
+    c = frame.px([est.x, est.y])
+    tip = frame.px([est.x + 0.6 * np.cos(est.theta), est.y + 0.6 * np.sin(est.theta)])
+    spread = max(3, round(est.std_m * frame.scale))
+    cv2.circle(img, (int(c[0]), int(c[1])), min(spread, 4 * img.shape[0]), _METRIC, 1, cv2.LINE_AA)
+    cv2.arrowedLine(
+        img, (int(c[0]), int(c[1])), (int(tip[0]), int(tip[1])), _METRIC, 2, cv2.LINE_AA
+    )
+
+
+def _label(img: ImageArray, text: str, centre: tuple[int, int]) -> None:
+    """``text`` centred on ``centre`` (kept inside the image) on a light backing."""
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+    (tw, th), _ = cv2.getTextSize(text, font, scale, 1)
+    h, w = img.shape[:2]
+    x = int(np.clip(centre[0] - tw // 2, 2, max(2, w - tw - 2)))
+    y = int(np.clip(centre[1], th + 2, h - 3))
+    cv2.rectangle(img, (x - 2, y - th - 2), (x + tw + 2, y + 3), (255, 255, 255), -1)
+    cv2.putText(img, text, (x, y), font, scale, _TEXT, 1, cv2.LINE_AA)
