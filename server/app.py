@@ -6,7 +6,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from importlib import resources
 
@@ -115,9 +115,15 @@ async def _forget_forever(repo: Repo, keep_s: float, period_s: float = 3600.0) -
         await asyncio.sleep(period_s)
 
 
-def create_app(settings: Settings, *, navigation: NavigationParams | None = None) -> FastAPI:
+def create_app(
+    settings: Settings,
+    *,
+    navigation: NavigationParams | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> FastAPI:
     """The FastAPI application for ``settings`` (database, admin token, limits);
-    ``navigation`` tunes the navigation core (defaults documented in NavigationParams)."""
+    ``navigation`` tunes the navigation core (defaults documented in NavigationParams);
+    ``clock`` is what the rate limits read the time from (seconds, monotonic)."""
     if settings.admin_token is None:
         raise ValueError("settings.admin_token is required (serve generates one when unset)")
     if settings.navigation:
@@ -237,5 +243,6 @@ def create_app(settings: Settings, *, navigation: NavigationParams | None = None
         Guard,
         limiter=RateLimiter(settings.rate_limits()),
         record=services.repo.add_audit,
+        clock=clock,
     )
     return app

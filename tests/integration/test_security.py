@@ -781,7 +781,9 @@ def test_a_token_that_authenticated_once_cannot_drive_another_robot(api: Api) ->
 # --- rate limits ------------------------------------------------------------------------------
 
 
-def limited_api(tmp_path: Path, **limits: float) -> TestClient:
+def limited_api(
+    tmp_path: Path, clock: Callable[[], float] = time.monotonic, **limits: float
+) -> TestClient:
     from server.app import create_app
     from server.config import Settings
 
@@ -791,7 +793,7 @@ def limited_api(tmp_path: Path, **limits: float) -> TestClient:
         dashboard_port=None,
         **limits,  # type: ignore[arg-type]
     )
-    return TestClient(create_app(settings))
+    return TestClient(create_app(settings, clock=clock))
 
 
 def test_300_wrong_tokens_are_answered_429_once_the_allowance_is_spent(tmp_path: Path) -> None:
@@ -818,12 +820,18 @@ def test_300_wrong_tokens_are_answered_429_once_the_allowance_is_spent(tmp_path:
 
 
 def test_one_token_over_its_rate_waits_then_goes_on(tmp_path: Path) -> None:
-    with limited_api(tmp_path, rate_token_per_s=2.0, rate_token_burst=5.0) as http:
+    """On a clock the test moves (a slow machine must not refill the bucket mid-burst)."""
+    now = [1000.0]
+    with limited_api(
+        tmp_path, clock=lambda: now[0], rate_token_per_s=2.0, rate_token_burst=5.0
+    ) as http:
         admin = {"Authorization": "Bearer limits-admin"}
         statuses = [http.get("/households", headers=admin).status_code for _ in range(6)]
         assert statuses == [200] * 5 + [429]
         r = http.get("/households", headers=admin)
         assert r.status_code == 429 and r.headers["retry-after"] == "1"
         assert "this token" in r.json()["detail"]
-        time.sleep(0.6)
+        now[0] += 0.4
+        assert http.get("/households", headers=admin).status_code == 429
+        now[0] += 0.2
         assert http.get("/households", headers=admin).status_code == 200
