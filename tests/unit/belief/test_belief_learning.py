@@ -56,8 +56,8 @@ def _naive_counts(model: BeliefModel, run: list[FilterStep]) -> TransitionCounts
         for e in range(g.n_edges):
             lo, hi = L + int(g.edge_offsets[e]), L + int(g.edge_offsets[e + 1])
             m0, m1 = gam[t - 1][lo:hi].sum(), gam[t][lo:hi].sum()
-            p0 = sum(gam[t - 1][i] * (i - lo) for i in range(lo, hi)) / m0
-            p1 = sum(gam[t][i] * (i - lo) for i in range(lo, hi)) / m1
+            p0 = int(np.argmax(gam[t - 1][lo:hi]))
+            p1 = int(np.argmax(gam[t][lo:hi]))
             wts = op.motion.weights[e]
             k = sum(wts[j] * (op.motion.lo + j) for j in range(len(wts)))
             w = min(m0, m1)
