@@ -60,7 +60,7 @@ def _naive_counts(model: BeliefModel, run: list[FilterStep]) -> TransitionCounts
             p1 = int(np.argmax(gam[t][lo:hi]))
             wts = op.motion.weights[e]
             k = sum(wts[j] * (op.motion.lo + j) for j in range(len(wts)))
-            w = min(m0, m1)
+            w = min(m0, m1) if min(m0, m1) >= 0.5 else 0.0
             c.steps[e] += w
             c.moved[e] += w * (p1 - p0)
             c.taught[e] += w * k
