@@ -223,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: --experience-runs must be >= 0", file=sys.stderr)
         return 2
     if args.experience_runs:
-        args.settings = [*args.settings, ("learning.collect", True), ("learning.run_steps", 0)]
+        args.settings = [("learning.collect", True), ("learning.run_steps", 0), *args.settings]
     try:
         env = _navigation_env(args.settings)
     except ValueError as exc:
