@@ -170,6 +170,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(server/bench/localize_ambiguity.py), and report its error in metres",
     )
     parser.add_argument(
+        "--query-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="replay only every N-th query frame: a robot driving N times the taught pace "
+        "while its odometry says the taught pace (default 1; docs/learning.md)",
+    )
+    parser.add_argument(
         "--learn-transitions",
         action="store_true",
         help="also report every figure with learned transitions (001 s10.1): learned on one "
@@ -1062,12 +1070,16 @@ def plan_directions(
 ) -> list[DirectionPlan]:
     """The forward run and, with ``--both-directions``, the reverse one (the traversals
     swapped, the ground truth inverted), each restricted to ``--half``; ``ValueError`` if a
-    run would have too few frames."""
+    run would have too few frames. With ``--query-every N`` each run replays every N-th of
+    its query frames."""
+    every = max(1, int(getattr(args, "query_every", 1)))
     qry, ref = select_half(qry_frames, ref_frames, gt, args.half)
+    qry = qry[::every]
     plans = [DirectionPlan("forward", args.reference, args.query, gt, args.gt, ref, qry)]
     if args.both_directions:
         inv = gt.inverted()
         qry, ref = select_half(ref_frames, qry_frames, inv, args.half)
+        qry = qry[::every]
         spec = args.gt if gt.matches is None else f"{args.gt} (inverted)"
         plans.append(DirectionPlan("reverse", args.query, args.reference, inv, spec, ref, qry))
     for plan in plans:
@@ -1158,6 +1170,7 @@ def run(args: argparse.Namespace) -> int:
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
         "likelihood_power": tracker_params.likelihood_power,
+        "query_every": args.query_every,
         "build_s": fwd.build_s,
     }
     for name, e in fwd.errors.items():
