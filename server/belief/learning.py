@@ -21,7 +21,8 @@ the corridor data, whose traversals have the same pace; the mode learned 0.87-0.
 * ``steps[e] = sum_t w_t(e)``: expected steps spent driving along ``e``,
 * ``moved[e] = sum_t w_t(e) (mu_t(e) - mu_{t-1}(e))``: expected images moved,
 * ``taught[e] = sum_t w_t(e) k_t(e)``: what the taught kernel expected over those same steps
-  (``k_t(e)`` its mean offset at that step's advance).
+  (``k_t(e)`` its mean offset at that step's advance; a run filtered with a learned model
+  divides by its scale, so counts of every run stay relative to the taught model and add).
 
 Why smoothed positions and not the pairwise marginals ``xi_t(i, j)``: the taught kernel is
 narrow (a few images around the expected advance), so a pairwise marginal cannot show a move
@@ -216,6 +217,8 @@ def expected_motion_counts(
             w = np.where(w >= p.min_mass, w, 0.0)
             w_ = op.motion.weights
             kernel = w_ @ (op.motion.lo + np.arange(w_.shape[1]))
+            if model.advance_scale is not None:  # counts stay relative to the taught model
+                kernel = kernel / model.advance_scale
             counts.steps[valid] += w
             counts.moved[valid] += w * (now[1] - prev[1])
             counts.taught[valid] += w * kernel[valid]

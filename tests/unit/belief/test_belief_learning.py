@@ -135,3 +135,18 @@ def test_learning_on_one_run_tracks_another_better() -> None:
     _, before = _drive(taught, np.random.default_rng(11), speed=1.6, frames=45)
     _, after = _drive(learned, np.random.default_rng(11), speed=1.6, frames=45)
     assert after < 0.5 * before, (before, after)
+
+
+def test_counts_of_a_run_on_a_learned_model_stay_relative_to_the_taught_one() -> None:
+    """A second run filtered with the learned model adds counts on the same scale: its own
+    estimate is again ~1.6, not ~1.6 / 1.5."""
+    graph = corridors_graph(80)
+    taught = BeliefModel(graph)
+    run, _ = _drive(taught, np.random.default_rng(10), speed=1.6, frames=45)
+    p = TransitionLearnParams(prior_images=10.0)
+    first = expected_motion_counts(taught, run)
+    learned = BeliefModel(graph, advance_scale=advance_scale(first, p))
+    again, _ = _drive(learned, np.random.default_rng(12), speed=1.6, frames=45)
+    second = expected_motion_counts(learned, again)
+    assert 1.4 < advance_scale(second, p)[0] < 1.8
+    assert 1.4 < advance_scale(first.plus(second), p)[0] < 1.8
