@@ -230,6 +230,20 @@ class TeachRepeatClient:
     def stop(self, robot: str) -> schemas.TaskPublic:
         return self._call(schemas.TaskPublic, "POST", f"/robots/{robot}/stop")
 
+    def learn(self, robot: str) -> list[schemas.LearnedChange]:
+        """Keep what the robot's last (arrived) task taught, as learned changes of its tour."""
+        return TypeAdapter(list[schemas.LearnedChange]).validate_json(
+            self._request("POST", f"/robots/{robot}/learn").content
+        )
+
+    def learned(self, tour: int) -> list[schemas.LearnedChange]:
+        """The tour's learned changes (docs/learning.md)."""
+        return self._list(schemas.LearnedChange, f"/tours/{tour}/learned")
+
+    def unlearn(self, tour: int, change: int) -> None:
+        """Remove one learned change of the tour."""
+        self._request("DELETE", f"/tours/{tour}/learned/{change}")
+
     def recordings(self, robot: str) -> list[schemas.RecordingPublic]:
         """The robot's recordings, newest first."""
         return self._list(schemas.RecordingPublic, f"/robots/{robot}/recordings")

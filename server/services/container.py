@@ -12,6 +12,7 @@ from server.navigation import NavigationParams
 from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
 from server.services.households import HouseholdService, Identities, LoginParams
+from server.services.learning import LearningService
 from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
@@ -30,6 +31,7 @@ class Services:
     teaching: TeachingService
     navigation: NavigationService
     recordings: Recorder
+    learning: LearningService
 
     @classmethod
     def build(
@@ -65,6 +67,8 @@ class Services:
         )
         nav.observers.append(recorder)
         teaching.observers.append(recorder)
+        learning = LearningService(repo, nav.params, nav.tour_changed)
+        nav.observers.append(learning)
         identities = Identities(repo)
         return cls(
             repo=repo,
@@ -77,6 +81,7 @@ class Services:
             teaching=teaching,
             navigation=nav,
             recordings=recorder,
+            learning=learning,
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:

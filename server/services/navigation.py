@@ -8,6 +8,7 @@ server resumes a navigation where it was instead of starting from a uniform beli
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import threading
 import time
@@ -16,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
+from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary
 from server.domain import TourGraph
@@ -83,7 +85,11 @@ class NavigationService:
             raise ValueError("concurrent_steps must be at least 1")
         self.repo = repo
         self.limits = limits
-        self.params = params if params is not None else NavigationParams()
+        params = params if params is not None else NavigationParams()
+        if params.learning.collect and params.tracker.keep_run < params.learning.run_steps:
+            tracker = dataclasses.replace(params.tracker, keep_run=params.learning.run_steps)
+            params = dataclasses.replace(params, tracker=tracker)
+        self.params = params
         self.is_teaching = is_teaching
         self.clock = clock
         self._steps = threading.BoundedSemaphore(concurrent_steps)
@@ -182,12 +188,26 @@ class NavigationService:
         graph = self.repo.graph(tour_id)
         if graph.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
-        rt = TourRuntime(graph, self._features(graph), self.params, version=version)
+        scale = learned_scale(self.repo, tour_id, graph.n_edges)
+        rt = TourRuntime(
+            graph, self._features(graph), self.params, version=version, advance_scale=scale
+        )
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
         self._distinctiveness(tour_id, rt)
+        self._experiences(tour_id, rt)
         return rt
+
+    def _experiences(self, tour_id: int, rt: TourRuntime) -> None:
+        """The tour's stored experiences (docs/learning.md) into its index."""
+        canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
+        items = []
+        for image_id, blob in self.repo.experiences(tour_id):
+            feats = _stored_features(blob, self.params.features)
+            if feats is not None and image_id in canonical:
+                items.append((canonical[image_id], feats))
+        rt.add_experiences(items)
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else
@@ -483,6 +503,21 @@ class NavigationService:
         """A copy of the live sessions (for the dashboard)."""
         with self._lock:
             return dict(self._sessions)
+
+
+def learned_scale(repo: Repo, tour_id: int, n_edges: int) -> np.ndarray | None:
+    """The tour's learned advance scale from its stored transition changes (None: none, the
+    taught model; docs/learning.md)."""
+    blobs = repo.transition_counts(tour_id)
+    total = TransitionCounts.zeros(n_edges)
+    used = 0
+    for blob in blobs:
+        try:
+            total = total.plus(TransitionCounts.from_bytes(blob, n_edges))
+            used += 1
+        except ValueError:
+            continue  # learned before the tour changed shape: no longer applies
+    return advance_scale(total) if used else None
 
 
 def _location_index(graph: TourGraph, location_id: int) -> int | None:
