@@ -202,3 +202,73 @@ def test_robots_stay_on_their_process_and_one_killed_comes_back(
         assert shown.status_code == 200, shown.text
         places = shown.json()["locations"]
         assert sorted(p["name"] for p in places) == sorted(PLACES.values())
+
+
+# --- two processes, one tour ----------------------------------------------------------------
+
+
+def test_a_tour_taught_further_in_another_process_is_seen_here(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    """Two apps on one database file, as two server processes behind HAProxy: a robot held by
+    the second navigates a tour, a robot held by the first teaches it a new place, and the
+    second sends its robot there (its tour runtime is prepared again, not kept stale)."""
+    from fastapi.testclient import TestClient
+    from pydantic import SecretStr
+
+    from server.app import create_app
+    from server.config import Settings
+
+    settings = Settings(
+        db=tmp_path / "shared.sqlite", admin_token=SecretStr(ADMIN), dashboard_port=None
+    )
+    ref = sorted((shared_data / "corridor" / "ref").glob("*.jpg"))
+    with (
+        TestClient(create_app(settings.model_copy(update={"worker_name": "w0"}))) as first,
+        TestClient(create_app(settings.model_copy(update={"worker_name": "w1"}))) as second,
+    ):
+        teacher = {
+            "Authorization": "Bearer "
+            + first.post("/robots", json={"name": "teacher"}, headers=_admin()).json()["token"]
+        }
+        tour = first.post("/tours", json={"name": "corridor"}, headers=teacher).json()["id"]
+
+        def teach(places: dict[int, str], frames: range) -> None:
+            first.post("/robots/teacher/teach/start", json={"tour": tour}, headers=teacher)
+            for k in frames:
+                url = "/robots/teacher/frames"
+                if k in places:
+                    r = first.post(
+                        "/robots/teacher/teach/locations",
+                        json={"name": places[k]},
+                        headers=teacher,
+                    )
+                    assert r.status_code == 200, r.text
+                    url = "/robots/teacher/teach/spin"
+                r = first.post(
+                    url,
+                    params={"timestamp": k / 10, "v": 0.3},
+                    content=ref[k].read_bytes(),
+                    headers={**teacher, **JPEG},
+                )
+                assert r.status_code == 200, r.text
+            assert first.post("/robots/teacher/teach/finish", headers=teacher).is_success
+
+        teach({0: "entry", 50: "hall"}, range(0, 51, 5))
+        rover = {
+            "Authorization": "Bearer "
+            + second.post("/robots", json={"name": "rover"}, headers=_admin()).json()["token"]
+        }
+        r = second.post("/robots/rover/goto", json={"location": "hall"}, headers=rover)
+        assert r.status_code == 200 and r.headers[WORKER_HEADER] == "w1", r.text
+        teach({50: "hall", 110: "kitchen"}, range(50, 111, 5))
+        r = second.post("/robots/rover/goto", json={"location": "kitchen"}, headers=rover)
+        assert r.status_code == 200, r.text
+        r = second.post(
+            "/robots/rover/frames",
+            params={"timestamp": 1.0, "v": 0.3},
+            content=ref[60].read_bytes(),
+            headers={**rover, **JPEG},
+        )
+        assert r.status_code == 200, r.text
+        assert r.json()["task"]["goal"] == "kitchen"
