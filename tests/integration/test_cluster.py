@@ -43,6 +43,8 @@ def test_the_shipped_configuration_is_valid_haproxy(tmp_path: Path) -> None:
     assert "bind 127.0.0.1:18000" in text and "balance hdr(X-Teachrepeat-Robot)" in text
     settings = [line.split("#")[0] for line in text.splitlines()]
     assert not any(" check" in line or "redispatch" in line for line in settings)
+    # nothing logged: a robot's bearer token travels in a header
+    assert not any(line.split()[:1] == ["log"] or "httplog" in line for line in settings)
 
 
 def test_the_configuration_refuses_what_haproxy_could_not_run() -> None:
