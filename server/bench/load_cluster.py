@@ -7,8 +7,9 @@ one of them (docs/scale.md). So the latency is the whole path a robot sees: clie
 server process and back. Measured per run, besides the robots' p50/p95/p99, frames/s and
 errors:
 
-* per process (each server process, HAProxy, the launcher): CPU (100 = one core) from
-  ``/proc/<pid>/stat`` over the measured window;
+* per process (each server process, HAProxy, the launcher, and ``clients``: this process,
+  whose threads are the robots): CPU (100 = one core) from ``/proc/<pid>/stat`` over the
+  measured window;
 * per server process: the robots it held (from each robot's ``X-Teachrepeat-Worker``), RSS
   first after the warm-up and last, and their ratio.
 
@@ -162,7 +163,8 @@ def cluster_run(
         tokens = _teach(server, ref, robots, goal)
         pids = cluster_processes(server.proc.pid)
         pids["launcher"] = server.proc.pid
-        workers = sorted(k for k in pids if k not in ("haproxy", "launcher"))
+        pids["clients"] = os.getpid()  # this process: the robots' threads
+        workers = sorted(k for k in pids if k not in ("haproxy", "launcher", "clients"))
         held = {name: worker_of(server.url, token, name) for name, token in tokens.items()}
         samplers = {w: RssSampler(pids[w], rss_every_s) for w in workers}
         for sampler in samplers.values():

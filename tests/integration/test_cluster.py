@@ -186,8 +186,9 @@ def test_robots_stay_on_their_process_and_one_killed_comes_back(
 
         # SIGKILL the process holding b, as a crash would. b's next frame waits for the
         # restart (HAProxy tries the same process again) and b carries on with its task.
-        # A request the dying process had already taken is lost with it; the robot client
-        # sends it again (TeachRepeatClient(retries=...)), as this test does.
+        # A request that reaches the process as it dies is lost with it (HAProxy closes the
+        # connection unanswered); a robot client sends it again (TeachRepeatClient(retries=
+        # ...)), as this test does.
         pids = cluster_processes(cluster.proc.pid)
         os.kill(pids[holder[b]], signal.SIGKILL)
         for k in range(6, 12):
