@@ -80,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="extra environment of the server process (repeatable), e.g. OPENBLAS_NUM_THREADS=1",
     )
+    parser.add_argument(
+        "--processes",
+        default=None,
+        metavar="P[,P...]",
+        help="run the server as `serve --workers P` (HAProxy in front of P processes, "
+        "docs/scale.md) and measure through HAProxy, with each process's CPU and RSS; "
+        "1,2 alternates both per robot count. Default: one process, no HAProxy",
+    )
     parser.add_argument("--data", type=Path, default=None, help="image data folder")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
 
@@ -338,6 +346,10 @@ def meets(result: dict[str, Any], p99_ms: float) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.processes is not None:  # through HAProxy, P processes (docs/scale.md)
+        from server.bench import load_cluster
+
+        return load_cluster.run(args)
     counts = [int(x) for x in args.sweep.split(",") if x.strip()] if args.sweep else [args.robots]
     if not counts or min(counts) < 1:
         print("robot counts must be positive integers, e.g. --sweep 1,5,10,20")

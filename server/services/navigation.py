@@ -36,6 +36,10 @@ BELIEF_SNAPSHOT_S = 1.0
 """Wall-clock seconds between two persisted belief snapshots of a navigating robot."""
 PREBUILD_DELAY_S = 1.0
 """After teaching changes a tour, wait this long for more changes before preparing it."""
+STAMP_CHECK_S = 1.0
+"""Seconds between two looks at whether another server process on the same database changed a
+tour in use (:meth:`Repo.tour_stamp`; several processes behind HAProxy, docs/scale.md). A goto
+always looks."""
 
 
 class NavigationObserver:
@@ -96,6 +100,8 @@ class NavigationService:
         self._runtimes: dict[int, TourRuntime] = {}
         self._changes: dict[int, int] = {}  # tour_changed calls per tour
         self._built_from: dict[int, int] = {}  # the tour_changed count each runtime was built at
+        self._stamps: dict[int, tuple[int, ...]] = {}  # the tour_stamp each runtime was built at
+        self._stamp_checked: dict[int, float] = {}  # monotonic time of the last look
         self._sessions: dict[str, RobotSession] = {}
         self._tour_of: dict[str, int] = {}
         self._snapshot_at: dict[str, float] = {}
@@ -161,6 +167,7 @@ class NavigationService:
         again after the tour changed. With ``wait`` (a new task) a build under way is waited
         for; without (a step of a task under way) the previous runtime is returned meanwhile,
         and the session moves to the new one at a later step."""
+        self._check_stamp(tour_id, always=wait)
         with self._lock:
             rt = self._runtimes.get(tour_id)
             build_lock = self._build_locks.setdefault(tour_id, threading.Lock())
@@ -172,13 +179,35 @@ class NavigationService:
                 if rt is not None and self._is_current(tour_id):
                     return rt
                 changes = self._changes.get(tour_id, 0)
+            stamp = self.repo.tour_stamp(tour_id)  # before: a change meanwhile is seen later
             rt = self._build(tour_id, version=0 if rt is None else rt.version + 1)
             with self._lock:
+                self._stamps[tour_id] = stamp
                 # current only if the tour did not change while it was built; a caller that
                 # comes during the build waits for it instead of taking the previous runtime
                 self._runtimes[tour_id] = rt
                 self._built_from[tour_id] = changes
             return rt
+
+    def _check_stamp(self, tour_id: int, *, always: bool) -> None:
+        """Whether another process changed the tour since its runtime was built (at most every
+        :data:`STAMP_CHECK_S` unless ``always``); if so, as if teaching here had changed it."""
+        now = time.monotonic()
+        with self._lock:
+            built = self._stamps.get(tour_id)
+            last = self._stamp_checked.get(tour_id)
+            if built is None or (not always and last is not None and now - last < STAMP_CHECK_S):
+                return
+            self._stamp_checked[tour_id] = now
+        stamp = self.repo.tour_stamp(tour_id)
+        if stamp == built:
+            return
+        with self._lock:
+            if self._stamps.get(tour_id) != built:  # another thread noticed it first
+                return
+            self._stamps[tour_id] = stamp
+            self._changes[tour_id] = self._changes.get(tour_id, 0) + 1
+        log.info("tour %d changed in another server process: preparing it again", tour_id)
 
     def _is_current(self, tour_id: int) -> bool:
         """Whether the stored runtime was built after the tour's last change (under the lock)."""

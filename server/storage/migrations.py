@@ -280,6 +280,12 @@ def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
         if rebuilds:
             conn.execute("PRAGMA foreign_keys = OFF")  # a no-op inside a transaction
         conn.execute("BEGIN IMMEDIATE")
+        if current_version(db) >= number:  # another process applied it while we waited
+            conn.execute("ROLLBACK")
+            if rebuilds and keys_on:
+                conn.execute("PRAGMA foreign_keys = ON")
+            version = number
+            continue
         try:
             fn(db)
             broken = conn.execute("PRAGMA foreign_key_check").fetchall() if rebuilds else []

@@ -395,6 +395,23 @@ class Repo:
         )[0]
         return int(row[0]), int(row[1])
 
+    def tour_stamp(self, tour_id: int) -> tuple[int, ...]:
+        """What changes whenever teaching changes the tour's graph: the count and largest id
+        of its places, paths and stored images (not those on a robot's open path). Another
+        server process on the same file compares it with the stamp its runtime was built
+        from (docs/scale.md)."""
+        row = self._q(
+            "SELECT (SELECT count(*) FROM locations WHERE tour_id = ?1),"
+            " (SELECT coalesce(max(id), 0) FROM locations WHERE tour_id = ?1),"
+            " (SELECT count(*) FROM edges WHERE tour_id = ?1),"
+            " (SELECT coalesce(max(id), 0) FROM edges WHERE tour_id = ?1),"
+            " (SELECT count(*) FROM images WHERE tour_id = ?1 AND pending_robot IS NULL),"
+            " (SELECT coalesce(max(id), 0) FROM images"
+            "  WHERE tour_id = ?1 AND pending_robot IS NULL)",
+            (tour_id,),
+        )[0]
+        return tuple(int(x) for x in row)
+
     def tour_weights(self, tour_id: int) -> tuple[bytes | None, int | None]:
         rows = self._q("SELECT weights, weights_images FROM tours WHERE id = ?", (tour_id,))
         if not rows:
