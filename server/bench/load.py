@@ -349,6 +349,9 @@ def run(args: argparse.Namespace) -> int:
     if args.processes is not None:  # through HAProxy, P processes (docs/scale.md)
         from server.bench import load_cluster
 
+        if args.profile:
+            print("--profile samples one server process: run it without --processes")
+            return 2
         return load_cluster.run(args)
     counts = [int(x) for x in args.sweep.split(",") if x.strip()] if args.sweep else [args.robots]
     if not counts or min(counts) < 1:
