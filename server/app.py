@@ -149,6 +149,7 @@ def create_app(
             keep_bytes=round(settings.record_keep_mb * 1e6),
             file_bytes=round(settings.record_file_mb * 1e6),
         ),
+        shared_store=settings.worker_name is not None,  # one of several processes on the file
     )
 
     @asynccontextmanager

@@ -46,9 +46,11 @@ class Services:
         recordings: Path,
         record_all: bool = False,
         retention: Retention | None = None,
+        shared_store: bool = False,
     ) -> Services:
         """``recordings``: the folder of the recordings (created on first use);
-        ``record_all``: record every teaching tour and navigation task."""
+        ``record_all``: record every teaching tour and navigation task; ``shared_store``: other
+        server processes write to the same database (:class:`NavigationService`)."""
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
             repo,
@@ -56,6 +58,7 @@ class Services:
             navigation,
             is_teaching=lambda robot: repo.teaching(robot) is not None,
             concurrent_steps=concurrent_steps,
+            shared_store=shared_store,
         )
         teaching.is_navigating = nav.is_navigating
         teaching.on_change = nav.tour_changed

@@ -80,14 +80,19 @@ class NavigationService:
         is_teaching: Callable[[str], bool] = lambda robot: False,
         clock: Callable[[], float] = time.time,
         concurrent_steps: int = 1,
+        shared_store: bool = False,
     ) -> None:
         """``concurrent_steps``: frames turned into a command at once over all robots
         (features, belief, command); more wait their turn. Decoding the JPEG and building a
         tour's runtime are not counted, so a large frame or a robot whose tour is being
-        prepared does not hold up the others."""
+        prepared does not hold up the others. ``shared_store``: other server processes write
+        to the same database (``serve --workers``), so a tour may change without this process
+        being told; its stamp is then compared (:meth:`Repo.tour_stamp`). A single process is
+        told of every change and never looks."""
         if concurrent_steps < 1:
             raise ValueError("concurrent_steps must be at least 1")
         self.repo = repo
+        self.shared_store = shared_store
         self.limits = limits
         params = params if params is not None else NavigationParams()
         if params.learning.collect and params.tracker.keep_run < params.learning.run_steps:
@@ -192,11 +197,15 @@ class NavigationService:
     def _check_stamp(self, tour_id: int, *, always: bool) -> None:
         """Whether another process changed the tour since its runtime was built (at most every
         :data:`STAMP_CHECK_S` unless ``always``); if so, as if teaching here had changed it."""
+        if not self.shared_store:
+            return
         now = time.monotonic()
         with self._lock:
             built = self._stamps.get(tour_id)
             last = self._stamp_checked.get(tour_id)
             if built is None or (not always and last is not None and now - last < STAMP_CHECK_S):
+                return
+            if not self._is_current(tour_id):  # a rebuild is due anyway; its stamp is newer
                 return
             self._stamp_checked[tour_id] = now
         stamp = self.repo.tour_stamp(tour_id)

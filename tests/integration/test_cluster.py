@@ -19,6 +19,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from robot_client.client import GATEWAY_ERRORS
 from server.bench.load_cluster import WORKER_HEADER, cluster_processes
 from server.cluster import WorkerAddress, haproxy_config
 from server.process import ADMIN, ServerProcess, start_server
@@ -134,15 +135,18 @@ def _teach(http: httpx.Client, frames: list[Path]) -> int:
 def _frame(
     http: httpx.Client, robot: str, token: str, jpeg: bytes, t: float, *, retries: int = 0
 ) -> httpx.Response:
-    """Post one navigation frame; a lost connection is retried ``retries`` times."""
+    """Post one navigation frame; a lost connection or HAProxy's 502 / 504 (the process died
+    with the request) is retried ``retries`` times, as the robot client does."""
     for attempt in range(retries + 1):
         try:
-            return http.post(
+            r = http.post(
                 f"/robots/{robot}/frames",
                 params={"timestamp": t, "v": 0.3},
                 content=jpeg,
                 headers={"Authorization": f"Bearer {token}", **JPEG},
             )
+            if r.status_code not in GATEWAY_ERRORS or attempt == retries:
+                return r
         except httpx.TransportError:
             if attempt == retries:
                 raise
