@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -231,13 +232,19 @@ def ukbench(method: Method, ds: Datasets) -> dict[str, Any]:
 # ------------------------------------------------------------------------------ speed
 
 
-def synthesise(images: Sequence[Image], count: int, seed: int) -> list[Image]:
+def synthesise(
+    images: Sequence[Image], count: int, seed: int, *, sources: list[int] | None = None
+) -> list[Image]:
     """``count`` 320x240 variants of ``images``: random crops (70-100 % of each side),
-    brightness x0.6-1.4 and horizontal flips."""
+    brightness x0.6-1.4 and horizontal flips. ``sources``, when given, receives the index in
+    ``images`` each variant was made from (the ground truth of the tours' recall)."""
     rng = np.random.default_rng(seed)
     out: list[Image] = []
     for k in range(count):
-        src = images[int(rng.integers(len(images)))] if k >= len(images) else images[k]
+        s = int(rng.integers(len(images))) if k >= len(images) else k
+        if sources is not None:
+            sources.append(s)
+        src = images[s]
         h, w = src.shape[:2]
         fw, fh = rng.uniform(0.7, 1.0, size=2)
         cw, ch = max(8, int(w * fw)), max(8, int(h * fh))
@@ -260,6 +267,71 @@ def _timeit(fn: Callable[[], Any], repeat: int) -> list[float]:
     return out
 
 
+def _tour(
+    pool_feats: Sequence[ImageFeatures],
+    n: int,
+    params: EngineParams,
+    images_per_state: int,
+    rng: np.random.Generator,
+) -> TourIndex:
+    """A synthesised tour of ``n`` images: pool image ``(k * 7919) % pool`` at place ``k``,
+    ``images_per_state`` consecutive images per state; copies' signatures jittered."""
+    idx = TourIndex(params)
+    states = np.arange(n) // images_per_state
+    chunk = 10_000
+    for lo in range(0, n, chunk):
+        hi = min(n, lo + chunk)
+        feats = [pool_feats[(k * 7919) % len(pool_feats)] for k in range(lo, hi)]
+        idx.add(feats, states[lo:hi])
+    if n > len(pool_feats):  # tiled copies: jitter signatures so that rankings are not ties
+        sig = idx.signatures
+        sig += rng.normal(0, 0.01, size=sig.shape).astype(np.float32)
+        idx.set_block_signatures(sig)
+    return idx
+
+
+@dataclass
+class _Timing:
+    """Per-query figures of one engine on one tour."""
+
+    total: list[float]
+    first: list[float]
+    second: list[float]
+    candidates: list[int]
+    scored: list[int]
+    top: list[npt.NDArray[np.int64]]
+
+    @classmethod
+    def empty(cls) -> _Timing:
+        return cls([], [], [], [], [], [])
+
+    def record(self, idx: TourIndex, f: ImageFeatures) -> None:
+        t = time.perf_counter()
+        sim = idx.query(f)
+        self.total.append((time.perf_counter() - t) * 1e3)
+        self.first.append(sim.first_pass_ms)
+        self.second.append(sim.second_pass_ms)
+        self.candidates.append(len(sim.candidates))
+        self.scored.append(sim.n_scored)
+        self.top.append(sim.candidates[:5].copy())
+
+    def summary(self, n: int, truth: npt.NDArray[np.int64], query_truth: Sequence[int]) -> dict:
+        fp = stats(self.first)
+        hit1 = [int(truth[t[0]] == q) for t, q in zip(self.top, query_truth, strict=True)]
+        hit5 = [int(q in truth[t]) for t, q in zip(self.top, query_truth, strict=True)]
+        return {
+            "total_ms_p50": stats(self.total)["p50"],
+            "total_ms_p95": stats(self.total)["p95"],
+            "first_pass_ms_p50": fp["p50"],
+            "second_pass_ms_p50": stats(self.second)["p50"],
+            "comparisons_per_s": n / (fp["p50"] / 1e3) if fp["p50"] > 0 else float("inf"),
+            "candidates_p50": float(np.median(self.candidates)),
+            "scored_p50": float(np.median(self.scored)),
+            "recall@1": float(np.mean(hit1)),
+            "recall@5": float(np.mean(hit5)),
+        }
+
+
 def speed(
     ds: Datasets,
     sizes: Sequence[int],
@@ -270,11 +342,22 @@ def speed(
     images_per_state: int,
     pool: int,
     with_baseline: bool = True,
+    compare_index: bool = True,
 ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-    """Per-query time on synthesised tours; returns (engine, baseline, extraction)."""
+    """Per-query time on synthesised tours; returns (engine, baseline, extraction).
+
+    With ``compare_index`` every tour is answered twice, query by query in turns: by the
+    exhaustive first pass and through the inverted files (``EngineParams.index_min_images``
+    forced below and above the tour size), side by side in ``engine[n]["exhaustive"]`` and
+    ``engine[n]["inverted_files"]``; ``engine[n]`` itself holds the figures of the one the
+    engine picks at that size (``engine[n]["automatic"]``). Without it, only the engine as
+    ``params`` configure it is timed. Recall: the best image is a variant of the image the
+    query was made from (``recall@1``; ``recall@5`` among the five best)."""
     base = ds.triplets + ds.ukbench + ds.corridor_ref + ds.corridor_query
-    pool_imgs = synthesise(base, pool, seed=1)
-    query_imgs = synthesise(base, max(n_queries, 10), seed=2)
+    pool_src: list[int] = []
+    query_src: list[int] = []
+    pool_imgs = synthesise(base, pool, seed=1, sources=pool_src)
+    query_imgs = synthesise(base, max(n_queries, 10), seed=2, sources=query_src)
     pool_feats = [extract(im, params.features) for im in pool_imgs]
     query_feats = [extract(im, params.features) for im in query_imgs]
 
@@ -291,46 +374,67 @@ def speed(
     engine: dict[str, Any] = {}
     baseline: dict[str, Any] = {}
     rng = np.random.default_rng(3)
+    never = replace(params, index_min_images=sys.maxsize)
+    always = replace(params, index_min_images=1)
     for si, n in enumerate(sizes):
-        idx = TourIndex(params)
         states = np.arange(n) // images_per_state
-        chunk = 10_000
-        for lo in range(0, n, chunk):
-            hi = min(n, lo + chunk)
-            feats = [pool_feats[(k * 7919) % len(pool_feats)] for k in range(lo, hi)]
-            idx.add(feats, states[lo:hi])
-        if n > len(pool_feats):  # tiled copies: jitter signatures so that rankings are not ties
-            sig = idx.signatures
-            sig += rng.normal(0, 0.01, size=sig.shape).astype(np.float32)
-            idx.set_block_signatures(sig)
-        for f in query_feats[:3]:
-            idx.query(f)  # warm-up
-        first, second, total, cands = [], [], [], []
+        truth = np.asarray(pool_src, np.int64)[(np.arange(n) * 7919) % len(pool_feats)]
+        qtruth = [query_src[k % len(query_feats)] for k in range(n_queries)]
+        auto = "inverted_files" if n >= params.index_min_images else "exhaustive"
+        if compare_index:
+            exhaustive = _tour(pool_feats, n, never, images_per_state, rng)
+            t = time.perf_counter()
+            indexed = exhaustive.with_params(always)
+            build_s = time.perf_counter() - t
+            engines = {"exhaustive": exhaustive, "inverted_files": indexed}
+        else:
+            idx = _tour(pool_feats, n, params, images_per_state, rng)
+            auto = "inverted_files" if idx.uses_inverted_files else "exhaustive"
+            engines = {auto: idx}
+        timing = {name: _Timing.empty() for name in engines}
+        for e in engines.values():
+            for f in query_feats[:3]:
+                e.query(f)  # warm-up
+        names = list(engines)
         for k in range(n_queries):
             f = query_feats[k % len(query_feats)]
-            t = time.perf_counter()
-            sim = idx.query(f)
-            total.append((time.perf_counter() - t) * 1e3)
-            first.append(sim.first_pass_ms)
-            second.append(sim.second_pass_ms)
-            cands.append(len(sim.candidates))
-        fp = stats(first)
+            for name in names if k % 2 == 0 else names[::-1]:  # in turns: same machine load
+                timing[name].record(engines[name], f)
+        side = {name: tm.summary(n, truth, qtruth) for name, tm in timing.items()}
+        chosen = engines[auto]
         engine[str(n)] = {
-            "total_ms_p50": stats(total)["p50"],
-            "total_ms_p95": stats(total)["p95"],
-            "first_pass_ms_p50": fp["p50"],
-            "second_pass_ms_p50": stats(second)["p50"],
-            "bytes_per_image": idx.bytes_per_image,
-            "comparisons_per_s": n / (fp["p50"] / 1e3) if fp["p50"] > 0 else float("inf"),
+            **side[auto],
+            "bytes_per_image": chosen.bytes_per_image + chosen.index_bytes_per_image,
             "n_states": int(states.max()) + 1,
-            "candidates_p50": float(np.median(cands)),
             "n_queries": n_queries,
+            "automatic": auto,
         }
-        del idx
-        if not with_baseline:
+        if compare_index:
+            ex, ix = side["exhaustive"], side["inverted_files"]
+            same = [
+                int(a[0] == b[0])
+                for a, b in zip(timing["exhaustive"].top, timing["inverted_files"].top, strict=True)
+            ]
+            engine[str(n)]["exhaustive"] = {**ex, "bytes_per_image": exhaustive.bytes_per_image}
+            engine[str(n)]["inverted_files"] = {
+                **ix,
+                "bytes_per_image": indexed.bytes_per_image + indexed.index_bytes_per_image,
+                "index_bytes_per_image": indexed.index_bytes_per_image,
+                "build_s": build_s,
+                "recall@1_points_vs_exhaustive": 100.0 * (ix["recall@1"] - ex["recall@1"]),
+                "same_best_image_as_exhaustive": float(np.mean(same)),
+                "speedup_vs_exhaustive": ex["total_ms_p50"] / max(ix["total_ms_p50"], 1e-9),
+            }
+            print(
+                f"  speed n={n}: exhaustive {ex['total_ms_p50']:.2f} ms p50 "
+                f"(recall@1 {ex['recall@1']:.3f}), inverted files {ix['total_ms_p50']:.2f} ms "
+                f"(recall@1 {ix['recall@1']:.3f}, built in {build_s:.1f} s); automatic: {auto}",
+                flush=True,
+            )
+        del engines, chosen
+        nq = baseline_queries[min(si, len(baseline_queries) - 1)] if baseline_queries else 0
+        if not with_baseline or nq <= 0:  # 0 baseline queries: the baseline skips this size
             continue
-
-        nq = baseline_queries[min(si, len(baseline_queries) - 1)]
         refs = [pool_orb[(k * 7919) % len(pool_orb)] for k in range(n)]
         bl.build(refs, states, states)
         times = []
@@ -354,7 +458,8 @@ def speed(
         )
         print(
             f"  speed n={n}: engine {engine[str(n)]['total_ms_p50']:.2f} ms "
-            f"(first {fp['p50']:.2f}, {engine[str(n)]['candidates_p50']:.0f} candidates), "
+            f"(first {engine[str(n)]['first_pass_ms_p50']:.2f}, "
+            f"{engine[str(n)]['candidates_p50']:.0f} candidates), "
             f"baseline {st['p50']:.1f} ms over {nq} queries",
             flush=True,
         )
@@ -365,6 +470,9 @@ def speed(
         "N(0, 0.01)); the baseline stores the ORB features of the first 1000 pool images "
         "cyclically. Times are measured, never extrapolated; baseline query counts are in "
         "speed.<n>.n_queries.",
+        "recall": "recall@1: the best image is a variant of the real image the query was made "
+        "from (recall@5: one of the five best); exhaustive and inverted_files answer the same "
+        "tour and queries in turns; the engine's own figures are those of speed.<n>.automatic",
     }
     ext["notes"] = notes
     return engine, baseline, ext
@@ -438,6 +546,12 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
     print("baseline:", _summary(baseline), flush=True)
 
     variants: dict[str, Any] = {}
+    if not quick:
+        # the real data through the inverted files (forced on: these sets are far below the
+        # threshold), default weights as the engine row: what the approximation costs
+        forced = Engine(replace(params, index_min_images=1), learn=False)
+        variants["inverted_files"] = accuracy(forced, ds)
+        print(f"{'inverted_files':16s}:", _summary(variants["inverted_files"]), flush=True)
     if not (quick or args.no_variants):
         other_geo = replace(params, geometric=not params.geometric)
         # every variant learns its weights per tour (groups of consecutive references), so
@@ -476,6 +590,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
             images_per_state=args.images_per_state,
             pool=args.pool,
             with_baseline=False,
+            compare_index=False,
         )
         variants["features_50"]["extraction"] = {"ms_p50": ext50["engine_ms_p50"]}
     engine["speed"] = eng_speed
@@ -501,9 +616,11 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
                 "triplets": "leave-one-out over 30 images, state = place",
                 "ukbench": "query included in the database, mean same-group count in top 4",
             },
-            "variants": "all variants learn their weights per tour (groups of 5 corridor / 10 "
-            "Nordland references, places for triplets; defaults where too small); compare "
-            "them with variants.learned_weights. ORB skips Nordland (too slow).",
+            "variants": "all variants but inverted_files learn their weights per tour (groups "
+            "of 5 corridor / 10 Nordland references, places for triplets; defaults where too "
+            "small); compare them with variants.learned_weights. ORB skips Nordland (too "
+            "slow). inverted_files: the engine row with EngineParams.index_min_images=1 (the "
+            "inverted files forced on; run with --no-variants too).",
             "seconds": time.perf_counter() - t0,
         },
     }
@@ -530,7 +647,8 @@ def format_table(results: dict[str, Any]) -> str:
         ("ukbench score (of 4)", e["ukbench"]["score"], b["ukbench"]["score"]),
     ]
     for n, s in e["speed"].items():
-        bs = b["speed"][n]
+        nan = float("nan")
+        bs = b["speed"].get(n, {"total_ms_p50": nan, "total_ms_p95": nan, "bytes_per_image": nan})
         rows.append((f"{n} images: total ms p50", s["total_ms_p50"], bs["total_ms_p50"]))
         rows.append((f"{n} images: total ms p95", s["total_ms_p95"], bs["total_ms_p95"]))
         rows.append((f"{n} images: first pass ms p50", s["first_pass_ms_p50"], float("nan")))
@@ -543,6 +661,21 @@ def format_table(results: dict[str, Any]) -> str:
         f"extraction ms p50 (320x240): engine {e['extraction']['ms_p50']:.2f}, "
         f"ORB-500 {b['extraction']['ms_p50']:.2f}"
     )
+    sides = [(n, sp) for n, sp in e["speed"].items() if "inverted_files" in sp]
+    if sides:
+        lines.append(
+            f"{'tour: first pass':42s} {'ms p50':>8s} {'ms p95':>8s} {'recall@1':>9s} "
+            f"{'recall@5':>9s} {'build s':>8s}"
+        )
+    for n, sp in sides:
+        for name in ("exhaustive", "inverted_files"):
+            r = sp[name]
+            mark = " (automatic)" if sp["automatic"] == name else ""
+            lines.append(
+                f"{f'{n} images: {name}{mark}':42s} {r['total_ms_p50']:8.2f} "
+                f"{r['total_ms_p95']:8.2f} {r['recall@1']:9.3f} {r['recall@5']:9.3f} "
+                f"{r.get('build_s', 0.0):8.1f}"
+            )
     return "\n".join(lines)
 
 

@@ -300,6 +300,7 @@ def query_speed(
         images_per_state=100,
         pool=pool,
         with_baseline=False,
+        compare_index=False,
     )
     return {
         n: {k: s[k] for k in ("total_ms_p50", "total_ms_p95", "bytes_per_image")}

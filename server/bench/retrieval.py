@@ -6,6 +6,9 @@ synthesised tours of 1 000 / 10 000 / 100 000 images, in one run, side by side:
 * **engine** - :mod:`server.vision` with its defaults (``--descriptor`` changes the local
   features; plus variants: geometric check on, 50 features, ORB descriptor, default vs learned
   weights);
+* on the synthesised tours also the **exhaustive first pass against the inverted files**
+  (:mod:`server.vision.inverted`) on the same tour and queries, and which one the engine picks
+  at that size (``engine.speed.<n>.automatic``);
 * **baseline** - what a user would write with OpenCV alone: ORB with 500 features,
   brute-force Hamming ``knnMatch(k=2)`` with Lowe's ratio test (0.75) against every stored
   image, best = most good matches.
@@ -62,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--baseline-queries",
         default="20,5,2",
         help="timed baseline queries for the 1st, 2nd, 3rd... tour size (the baseline takes "
-        "seconds per query on large tours)",
+        "seconds per query on large tours; 0 skips the baseline at that size)",
     )
     parser.add_argument(
         "--images-per-state",
@@ -74,7 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--pool", type=int, default=3000, help="distinct synthesised images tiled into tours"
     )
     parser.add_argument(
-        "--no-variants", action="store_true", help="skip the engine variants (faster)"
+        "--no-variants",
+        action="store_true",
+        help="skip the engine variants (faster; the inverted-files one still runs, ~20 s)",
     )
     parser.add_argument(
         "--descriptor",

@@ -10,6 +10,8 @@ Pipeline, one module per step:
 2. :mod:`server.vision.index` - the per-tour index (contiguous arrays, incremental ``add``), the
    two-pass query (weighted signature distance to every image, then local features and an optional
    RANSAC check on the candidates).
+   On tours of ``EngineParams.index_min_images`` images or more, the candidates come from
+   :mod:`server.vision.inverted` (signature lists and visual words) in sub-linear time.
 3. :mod:`server.vision.learning` - the signature weights learned per tour, on the tour's images
    and on copies of them under changed light (:mod:`server.vision.augment`).
 4. :mod:`server.vision.homing` - horizontal offset between the current frame and a target image,
@@ -29,6 +31,7 @@ from server.vision.homing import (
 )
 from server.vision.index import (
     EngineParams,
+    IndexParams,
     Similarity,
     TourIndex,
     default_weights,
@@ -41,6 +44,7 @@ __all__ = [
     "HomingParams",
     "HomingResult",
     "ImageFeatures",
+    "IndexParams",
     "LearnParams",
     "ScaleParams",
     "ScaleResult",

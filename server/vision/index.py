@@ -46,6 +46,13 @@ from server.vision.features import (
     signature_blocks,
     signature_length,
 )
+from server.vision.inverted import (
+    InvertedFile,
+    VocabularyTree,
+    WordFile,
+    kmeans,
+    nearest_centroid,
+)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -58,6 +65,48 @@ DEFAULT_WEIGHTS: tuple[float, ...] = (0.7, 0.0, 0.05, 0.05, 0.2)
 #: pixel against its neighbourhood, as in SeqSLAM), which a change of light or season moves
 #: least (docs/localize.md).
 CHANGED_WEIGHTS: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class IndexParams:
+    """How a large tour's inverted files (:mod:`server.vision.inverted`) are built and probed;
+    used from ``EngineParams.index_min_images`` images on (docs/retrieval.md, "Large tours").
+
+    Attributes:
+        lists: the signature file has ``round(lists * sqrt(n_images))`` lists.
+        probe: signature lists a query probes: the nearest centroids under each of its weights.
+        sample_per_list: signatures sampled per list to train the centroids.
+        iterations: Lloyd iterations of every k-means (signature lists, vocabulary nodes).
+        branching, depth: the vocabulary tree, ``branching ** depth`` visual words.
+        word_sample: corner descriptors sampled to train the vocabulary.
+        stop: the stop-list: words held by more than this fraction of the images are not
+            scored (seed 000).
+        word_candidates: the images with the best visual-word scores (tf-idf cosine > 0) that
+            join the second pass.
+        seed: seed of the samples and of k-means (the same images give the same index).
+    """
+
+    lists: float = 4.0
+    probe: int = 16
+    sample_per_list: int = 16
+    iterations: int = 10
+    branching: int = 64
+    depth: int = 2
+    word_sample: int = 200_000
+    stop: float = 0.05
+    word_candidates: int = 30
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.lists > 0:
+            raise ValueError("IndexParams.lists must be > 0")
+        for name in ("probe", "sample_per_list", "word_sample", "word_candidates"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"IndexParams.{name} must be at least 1")
+        if self.branching < 2 or self.depth < 1:
+            raise ValueError("IndexParams needs branching >= 2 and depth >= 1")
+        if not 0.0 < self.stop <= 1.0:
+            raise ValueError("IndexParams.stop must lie in (0, 1]")
 
 
 @dataclass(frozen=True)
@@ -87,6 +136,15 @@ class EngineParams:
         floor: smallest similarity any image or state gets, so no likelihood is zero.
         outside_factor: similarity of a non-candidate image as a fraction of the smallest
             candidate similarity of its state (001: 1/2).
+        index_min_images: the automatic switch to sub-linear retrieval. A tour of at least
+            this many images takes the second pass's candidates from two inverted files
+            (:mod:`server.vision.inverted`), built as the images are added: the
+            ``n_candidates`` nearest signatures among the probed lists, plus the
+            ``index.word_candidates`` best visual-word matches in place of the best image of
+            every state (states without a candidate get ``floor``). Below it nothing changes:
+            every signature is scanned, bit for bit as before. Chosen by measurement, the same
+            for every data set (docs/retrieval.md, "Large tours").
+        index: how the inverted files are built and probed (:class:`IndexParams`).
     """
 
     features: FeatureParams = field(default_factory=FeatureParams)
@@ -103,10 +161,14 @@ class EngineParams:
     min_matches: int = 6
     floor: float = 1e-3
     outside_factor: float = 0.5
+    index_min_images: int = 10_000
+    index: IndexParams = field(default_factory=IndexParams)
 
     def __post_init__(self) -> None:
         if self.n_candidates < 1:
             raise ValueError("n_candidates must be at least 1")
+        if self.index_min_images < 1:
+            raise ValueError("index_min_images must be at least 1")
         if not 0.0 < self.floor < 1.0:
             raise ValueError("floor must lie in (0, 1)")
         blocks = [n for n, _ in signature_blocks(self.features)]
@@ -127,6 +189,8 @@ class Similarity:
         best_image: ``(n_states,) int64`` index of the best image of each state, -1 if none.
         candidates: ``(C,) int64`` image indices that went through the second pass, best first.
         first_pass_ms, second_pass_ms: wall time of the two passes (ms).
+        n_scored: images whose signature distance the first pass computed (every image, or
+            those in the probed lists and the visual-word candidates on a large tour).
     """
 
     image: FloatArray
@@ -135,6 +199,7 @@ class Similarity:
     candidates: IntArray
     first_pass_ms: float
     second_pass_ms: float
+    n_scored: int = 0
 
     @property
     def total_ms(self) -> float:
@@ -211,6 +276,13 @@ class TourIndex:
             if params.weights is None
             else _normalise_weights(params.weights, self._n_blocks)
         )
+        # the inverted files (None below params.index_min_images): signature lists with their
+        # centroids by block, the vocabulary and the word file (None when no image has corners)
+        self._ivf: InvertedFile | None = None
+        self._cblocks: list[npt.NDArray[np.float32]] = []
+        self._csqn = np.zeros((0, self._n_blocks), np.float32)
+        self._vocab: VocabularyTree | None = None
+        self._words: WordFile | None = None
 
     # ------------------------------------------------------------------ storage
 
@@ -295,7 +367,9 @@ class TourIndex:
         self._cap = cap
 
     def add(self, features: Sequence[ImageFeatures], states: npt.ArrayLike) -> None:
-        """Append images.
+        """Append images. From ``params.index_min_images`` images on, each call also files the
+        new images in the inverted files, re-sorting the word postings (time in proportion to
+        the tour's size per call: add in batches, as the tour runtime does).
 
         Args:
             features: one :class:`ImageFeatures` per image, extracted with
@@ -347,10 +421,147 @@ class TourIndex:
             self._alias[lo:hi] = alias
         self._n = hi
         self._order = None
+        self._update_inverted_files(lo)
 
     def _block_sqnorms(self, sig: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         sq = sig.astype(np.float32) ** 2
         return np.add.reduceat(sq, self._bounds[:-1], axis=1).astype(np.float32)
+
+    # ------------------------------------------------------------------ inverted files
+
+    @property
+    def uses_inverted_files(self) -> bool:
+        """Whether queries take their candidates from the inverted files (the tour has at
+        least ``params.index_min_images`` images)."""
+        return self._ivf is not None
+
+    @property
+    def inverted_file(self) -> InvertedFile | None:
+        """The inverted file over the signatures; ``None`` below the threshold."""
+        return self._ivf
+
+    @property
+    def index_bytes_per_image(self) -> float:
+        """Memory of the inverted files per stored image in bytes (0 below the threshold):
+        list labels and members, word postings (image and count), norms, centroids and the
+        vocabulary spread over the images."""
+        if self._ivf is None or self._n == 0:
+            return 0.0
+        total = self._ivf.labels.nbytes + self._ivf.members.nbytes + self._ivf.offsets.nbytes
+        total += self._ivf.centroids.nbytes + sum(c.nbytes for c in self._cblocks)
+        if self._words is not None and self._vocab is not None:
+            w = self._words
+            total += w.offsets.nbytes + w.images.nbytes + w.counts.nbytes + w.idf.nbytes
+            total += w.norms.nbytes + sum(lv.nbytes for lv in self._vocab.levels)
+        return total / self._n
+
+    def with_params(self, params: EngineParams) -> TourIndex:
+        """The same images (signatures, corners, states, weights) under other engine
+        parameters, e.g. another ``index_min_images``; ``params.features`` must match."""
+        if params.features != self.params.features:
+            raise ValueError("with_params keeps the features; re-extract for other FeatureParams")
+        out = TourIndex(params)
+        n = self._n
+        out._grow(n)
+        for mine, theirs in zip(self._blocks, out._blocks, strict=True):
+            theirs[:n] = mine[:n]
+        for name in ("_sqn", "_kp", "_desc", "_nkp", "_state", "_alias"):
+            getattr(out, name)[:n] = getattr(self, name)[:n]
+        out._n = n
+        out._n_taught = self._n_taught  # the rest are experiences (add_experiences)
+        out._weights = self._weights.copy()
+        out._update_inverted_files(0)
+        return out
+
+    def _signature_rows(self, rows: npt.NDArray[np.int64] | slice) -> npt.NDArray[np.float32]:
+        """``(r, S) float32`` stored signatures of ``rows`` (a copy)."""
+        return np.concatenate([blk[: self._n][rows] for blk in self._blocks], axis=1)
+
+    def _descriptor_floats(self, desc: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
+        """``(m, D')`` descriptors as the vocabulary sees them: vector kinds scaled to nominal
+        unit norm, binary kinds as their bits."""
+        fp = self.params.features
+        if fp.binary:
+            return np.unpackbits(desc, axis=1).astype(np.float32)
+        return desc.astype(np.float32) * np.float32(fp.descriptor_scale)
+
+    def _corners(self, images: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.uint8], IntArray]:
+        """The descriptors of every corner of ``images`` ``(m, D) uint8`` and their images."""
+        nk = self._nkp[images].astype(np.int64)
+        real = np.arange(self._k)[None, :] < nk[:, None]
+        return self._desc[images][real], np.repeat(images, nk)
+
+    def _quantised(self, lo: int, hi: int) -> tuple[IntArray, IntArray]:
+        """Words and images of every corner of images ``lo..hi`` (in chunks, to bound memory)."""
+        assert self._vocab is not None
+        words, owners = [], []
+        for a in range(lo, hi, 4096):
+            desc, own = self._corners(np.arange(a, min(hi, a + 4096), dtype=np.int64))
+            words.append(self._vocab.quantise(self._descriptor_floats(desc)))
+            owners.append(own)
+        if not words:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.concatenate(words), np.concatenate(owners)
+
+    def _update_inverted_files(self, first_new: int) -> None:
+        """Keep the inverted files in step after images ``first_new..n`` were added: none below
+        the threshold; trained afresh when there are none yet or the tour has doubled since
+        they were trained (so O(1) trainings per image, amortised); else the new images are
+        filed in their nearest lists and their corners under their words."""
+        n = self._n
+        if n < self.params.index_min_images:
+            return
+        if self._ivf is not None and n < 2 * self._ivf.n_trained:
+            self._ivf = self._ivf.extended(self._signature_rows(slice(first_new, n)))
+            if self._words is not None:
+                words, owners = self._quantised(first_new, n)
+                self._words = self._words.extended(words, owners, n)
+            return
+        self._train_signature_file()
+        self._train_words()
+
+    def _train_signature_file(self) -> None:
+        ip = self.params.index
+        n = self._n
+        n_lists = int(min(n, max(1, round(ip.lists * np.sqrt(n)))))
+        rng = np.random.default_rng(ip.seed)
+        rows = np.sort(rng.choice(n, min(n, ip.sample_per_list * n_lists), replace=False))
+        centroids = kmeans(
+            self._signature_rows(rows.astype(np.int64)),
+            n_lists,
+            iterations=ip.iterations,
+            seed=ip.seed,
+        )
+        labels = [
+            nearest_centroid(self._signature_rows(slice(a, min(n, a + 8192))), centroids)
+            for a in range(0, n, 8192)
+        ]
+        self._ivf = InvertedFile.of(centroids, np.concatenate(labels), n_trained=n)
+        self._cblocks = [np.ascontiguousarray(centroids[:, a:b]) for a, b in self._block_pairs()]
+        self._csqn = self._block_sqnorms(centroids)
+
+    def _train_words(self) -> None:
+        ip = self.params.index
+        n = self._n
+        nk = self._nkp[:n].astype(np.int64)
+        total = int(nk.sum())
+        if total == 0:
+            self._vocab, self._words = None, None
+            return
+        rng = np.random.default_rng(ip.seed)
+        pick = np.sort(rng.choice(total, min(total, ip.word_sample), replace=False))
+        ends = np.cumsum(nk)
+        img = np.searchsorted(ends, pick, side="right")
+        slot = pick - (ends[img] - nk[img])
+        self._vocab = VocabularyTree.train(
+            self._descriptor_floats(self._desc[img, slot]),
+            branching=ip.branching,
+            depth=ip.depth,
+            iterations=ip.iterations,
+            seed=ip.seed,
+        )
+        words, owners = self._quantised(0, n)
+        self._words = WordFile.of(words, owners, self._vocab.n_words, n)
 
     # ------------------------------------------------------------------ weights
 
@@ -394,12 +605,7 @@ class TourIndex:
     ) -> npt.NDArray[np.float32]:
         """``(n_images, T) float32`` squared distance of every signature block to every image
         (``||q_t - x_t||^2``; columns of blocks not in ``blocks`` are 0)."""
-        q = np.asarray(query.signature, np.float32)
-        if q.shape != (self._s,):
-            raise ValueError(
-                f"query signature has {q.shape} values, the index expects ({self._s},); "
-                "extract the frame with the index's FeatureParams"
-            )
+        q = self._query_signature(query)
         n = self._n
         use = np.ones(self._n_blocks, bool) if blocks is None else blocks
         qsq = self._block_sqnorms(q[None, :])[0]
@@ -412,6 +618,79 @@ class TourIndex:
                 out[:, t] = col
         np.maximum(out, 0.0, out=out)
         return out
+
+    def _query_signature(self, query: ImageFeatures) -> npt.NDArray[np.float32]:
+        q = np.asarray(query.signature, np.float32)
+        if q.shape != (self._s,):
+            raise ValueError(
+                f"query signature has {q.shape} values, the index expects ({self._s},); "
+                "extract the frame with the index's FeatureParams"
+            )
+        return q
+
+    @staticmethod
+    def _rows_block_distances(
+        q: npt.NDArray[np.float32],
+        qsq: npt.NDArray[np.float32],
+        blocks: Sequence[npt.NDArray[np.float32] | None],
+        sqn: npt.NDArray[np.float32],
+        pairs: Sequence[tuple[int, int]],
+    ) -> npt.NDArray[np.float32]:
+        """``(r, T)`` squared block distances of ``q`` to the rows of ``blocks`` (``(r, S_t)``
+        each, ``None`` for a block not used: its column is 0; norms ``sqn`` ``(r, T)``)."""
+        out = np.zeros((len(sqn), len(pairs)), np.float32)
+        for t, (blk, (a, b)) in enumerate(zip(blocks, pairs, strict=True)):
+            if blk is not None:
+                col = blk @ (-2.0 * q[a:b])
+                col += sqn[:, t]
+                col += qsq[t]
+                out[:, t] = col
+        np.maximum(out, 0.0, out=out)
+        return out
+
+    def _indexed_candidates(
+        self, features: ImageFeatures, used: npt.NDArray[np.bool_], w32: npt.NDArray[np.float32]
+    ) -> tuple[list[IntArray], list[npt.NDArray[np.float32]], int]:
+        """The candidates of a large tour, per weight set (rows of ``w32``): the
+        ``n_candidates`` nearest signatures among the images of the probed lists and the
+        visual-word candidates (ascending image indices); their signature distances; how many
+        images the first pass scored."""
+        assert self._ivf is not None
+        p = self.params
+        ip = p.index
+        q = self._query_signature(features)
+        qsq = self._block_sqnorms(q[None, :])[0]
+        pairs = self._block_pairs()
+        centres = [c if u else None for c, u in zip(self._cblocks, used, strict=True)]
+        cd = self._rows_block_distances(q, qsq, centres, self._csqn, pairs) @ w32.T  # (L, M)
+        cd[np.diff(self._ivf.offsets) == 0] = np.inf  # an empty list is never worth a probe
+        n_lists = self._ivf.n_lists
+        k = min(ip.probe, n_lists)
+        probe = [np.argpartition(c, k - 1)[:k] if k < n_lists else np.arange(n_lists) for c in cd.T]
+        rows = self._ivf.rows(np.concatenate(probe))
+        by_words = np.zeros(0, np.int64)
+        if self._words is not None and self._vocab is not None and features.n_keypoints:
+            words = self._vocab.quantise(self._descriptor_floats(features.descriptors))
+            score = self._words.scores(words, stop=ip.stop)
+            hits = np.flatnonzero(score > 0)
+            t = len(hits) - ip.word_candidates
+            if t > 0:
+                hits = hits[np.argpartition(score[hits], t)[t:]]
+            by_words = np.sort(hits).astype(np.int64)
+        scored = np.union1d(rows, by_words).astype(np.int64)
+        gathered = [blk[scored] if u else None for blk, u in zip(self._blocks, used, strict=True)]
+        bd = self._rows_block_distances(q, qsq, gathered, self._sqn[scored], pairs)
+        dists = (bd @ w32.T).T  # (M, r)
+        r = len(scored)
+        m = min(p.n_candidates, r)
+        from_words = np.searchsorted(scored, by_words)
+        cands, dcand = [], []
+        for d in dists:
+            top = np.argpartition(d, m - 1)[:m] if m < r else np.arange(r)
+            local = np.union1d(top, from_words).astype(np.int64)
+            cands.append(scored[local])
+            dcand.append(d[local])
+        return cands, dcand, r
 
     def signature_distances(self, query: ImageFeatures) -> npt.NDArray[np.float32]:
         """First pass: ``(n_images,) float32`` weighted signature distance to every image,
@@ -431,6 +710,8 @@ class TourIndex:
         for blk, (a, b) in zip(self._blocks, self._block_pairs(), strict=True):
             blk[: self._n] = sig[:, a:b]
         self._sqn[: self._n] = self._block_sqnorms(sig)
+        if self._ivf is not None:  # new signatures, same corners: the lists only
+            self._train_signature_file()
 
     def _best_per_state(self, d: npt.NDArray[np.float32]) -> tuple[IntArray, IntArray]:
         """``(states present, best image of each)`` by first-pass distance."""
@@ -608,13 +889,18 @@ class TourIndex:
         t0 = time.perf_counter()
         w32 = np.stack(weight_sets).astype(np.float32)  # (M, T)
         used = np.asarray((w32 > 0).any(axis=0), bool)
-        dists = (self.block_distances(features, used) @ w32.T).T  # (M, n)
-        m = min(p.n_candidates, n)
-        cands = []
-        for d in dists:
-            top = np.argpartition(d, m - 1)[:m] if m < n else np.arange(n)
-            _, best = self._best_per_state(d)
-            cands.append(np.union1d(top, best).astype(np.int64))
+        if self._ivf is not None:
+            cands, dcand, n_scored = self._indexed_candidates(features, used, w32)
+        else:
+            dists = (self.block_distances(features, used) @ w32.T).T  # (M, n)
+            m = min(p.n_candidates, n)
+            cands, dcand, n_scored = [], [], n
+            for d in dists:
+                top = np.argpartition(d, m - 1)[:m] if m < n else np.arange(n)
+                _, best = self._best_per_state(d)
+                cand = np.union1d(top, best).astype(np.int64)
+                cands.append(cand)
+                dcand.append(d[cand])
         union = functools.reduce(np.union1d, cands).astype(np.int64)
         t1 = time.perf_counter()
 
@@ -625,9 +911,9 @@ class TourIndex:
             e_feat = self._feature_errors_from(dist)
             e_feat[~valid] = 1.0
         out = []
-        for d, cand in zip(dists, cands, strict=True):
+        for dc, cand in zip(dcand, cands, strict=True):
             pos = np.searchsorted(union, cand)
-            e = p.feature_weight * e_feat[pos] + p.signature_weight * d[cand].astype(np.float64)
+            e = p.feature_weight * e_feat[pos] + p.signature_weight * dc.astype(np.float64)
             if p.geometric and p.geometric_weight > 0:
                 g = min(p.geometric_top, len(cand))
                 verify = np.argsort(e, kind="stable")[:g]
@@ -638,7 +924,12 @@ class TourIndex:
             out.append(self._similarity(cand, _normalise_errors(e, p.floor), ns))
         t2 = time.perf_counter()
         return tuple(
-            dataclasses.replace(sim, first_pass_ms=(t1 - t0) * 1e3, second_pass_ms=(t2 - t1) * 1e3)
+            dataclasses.replace(
+                sim,
+                first_pass_ms=(t1 - t0) * 1e3,
+                second_pass_ms=(t2 - t1) * 1e3,
+                n_scored=n_scored,
+            )
             for sim in out
         )
 

@@ -58,6 +58,17 @@ def test_quick_run_writes_json_with_required_keys(shared_data: Path, tmp_path: P
         for key in SPEED:
             assert key in result[who]["speed"]["200"], (who, key)
     assert plot.stat().st_size > 1000
+    # exhaustive first pass and inverted files side by side on the same tour
+    sp = result["engine"]["speed"]["200"]
+    assert sp["automatic"] == "exhaustive"  # 200 images: far below the threshold
+    for name in ("exhaustive", "inverted_files"):
+        side = sp[name]
+        assert 0.0 < side["total_ms_p50"] <= side["total_ms_p95"]
+        assert 0.0 <= side["recall@1"] <= side["recall@5"] <= 1.0
+    assert sp["total_ms_p50"] == sp["exhaustive"]["total_ms_p50"]
+    assert sp["inverted_files"]["build_s"] > 0.0
+    assert sp["inverted_files"]["index_bytes_per_image"] > 0.0
+    assert sp["exhaustive"]["scored_p50"] == 200 > sp["inverted_files"]["scored_p50"]
 
 
 def test_missing_data_folder_is_a_clear_error(tmp_path: Path, capsys) -> None:
