@@ -27,11 +27,17 @@ class ApiError(Exception):
         self.code = code
 
 
+GATEWAY_ERRORS = frozenset({502, 504})
+"""Statuses a load balancer answers for a server process that died or did not answer."""
+
+
 class TeachRepeatClient:
     """One robot's (or the admin's) connection to a teachrepeat server.
 
-    Keeps one HTTP connection alive. ``retries`` > 0 retries connection failures with
-    exponential backoff (``backoff_s``, doubling), for a server that restarts. A request
+    Keeps one HTTP connection alive. ``retries`` > 0 retries connection failures and a
+    gateway's 502 / 504 (HAProxy's answer when the server process behind it died with the
+    request, ``serve --workers``; the server itself never answers them) with exponential
+    backoff (``backoff_s``, doubling), for a server that restarts. A request
     refused as too many (429) is sent again after the ``Retry-After`` the server gives, while
     the waits add up to at most ``max_wait_s``; then the 429 is raised as :class:`ApiError`.
 
@@ -108,15 +114,17 @@ class TeachRepeatClient:
         delay = self.backoff_s
         for attempt in range(self.retries + 1):
             try:
-                return self._http.request(method, path, **kwargs)
+                response = self._http.request(method, path, **kwargs)
+                if response.status_code not in GATEWAY_ERRORS or attempt == self.retries:
+                    return response
             except httpx.TransportError as exc:
                 refused = pinning.explain(exc, ca_cert=self.ca_cert)
                 if refused is not None:
                     raise UntrustedServerError(refused) from exc
                 if attempt == self.retries:
                     raise
-                time.sleep(delay)
-                delay *= 2
+            time.sleep(delay)
+            delay *= 2
         raise AssertionError("unreachable")  # pragma: no cover
 
     def _call(self, model: type[M], method: str, path: str, **kwargs: Any) -> M:
@@ -229,6 +237,20 @@ class TeachRepeatClient:
 
     def stop(self, robot: str) -> schemas.TaskPublic:
         return self._call(schemas.TaskPublic, "POST", f"/robots/{robot}/stop")
+
+    def learn(self, robot: str) -> list[schemas.LearnedChange]:
+        """Keep what the robot's last (arrived) task taught, as learned changes of its tour."""
+        return TypeAdapter(list[schemas.LearnedChange]).validate_json(
+            self._request("POST", f"/robots/{robot}/learn").content
+        )
+
+    def learned(self, tour: int) -> list[schemas.LearnedChange]:
+        """The tour's learned changes (docs/learning.md)."""
+        return self._list(schemas.LearnedChange, f"/tours/{tour}/learned")
+
+    def unlearn(self, tour: int, change: int) -> None:
+        """Remove one learned change of the tour."""
+        self._request("DELETE", f"/tours/{tour}/learned/{change}")
 
     def recordings(self, robot: str) -> list[schemas.RecordingPublic]:
         """The robot's recordings, newest first."""

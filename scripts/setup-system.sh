@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Debian packages the project needs: OSMesa for the simulator's CPU rendering, gimp-data for the
 # photographic textures of the simulated home, Chromium for the dashboard's browser test.
+# HAProxy: the load balancer in front of several server processes (`teachrepeat cluster`).
 # Installs only what is missing; needs root (or sudo) to install.
 set -euo pipefail
-packages=(libosmesa6 gimp-data chromium)
+packages=(libosmesa6 gimp-data chromium haproxy)
 missing=()
 for p in "${packages[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -23,6 +23,7 @@ from server import schemas
 from server.api.deps import PrincipalDep
 from server.api.guard import Guard
 from server.api.routes import households, images, navigate, recordings, robots, teach, tours
+from server.api.worker import WorkerHeader
 from server.config import Settings
 from server.errors import DomainError, TooMany
 from server.imaging import ImageLimits
@@ -148,6 +149,7 @@ def create_app(
             keep_bytes=round(settings.record_keep_mb * 1e6),
             file_bytes=round(settings.record_file_mb * 1e6),
         ),
+        shared_store=settings.worker_name is not None,  # one of several processes on the file
     )
 
     @asynccontextmanager
@@ -220,7 +222,10 @@ def create_app(
 
     @app.get("/health", tags=["health"])
     def health() -> dict[str, object]:
-        return {"status": "ok", "schema_version": services.repo.schema_version}
+        found: dict[str, object] = {"status": "ok", "schema_version": services.repo.schema_version}
+        if settings.worker_name is not None:
+            found["worker"] = settings.worker_name
+        return found
 
     @app.get(
         "/whoami",
@@ -245,4 +250,6 @@ def create_app(
         record=services.repo.add_audit,
         clock=clock,
     )
+    if settings.worker_name is not None:  # one of several behind HAProxy (docs/scale.md)
+        app.add_middleware(WorkerHeader, name=settings.worker_name)
     return app

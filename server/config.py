@@ -59,6 +59,23 @@ class Settings(BaseSettings):
         "loopback. The loopback default is one dashboard showing every household to whoever "
         "can reach 127.0.0.1, as before logins existed.",
     )
+    workers: int = Field(
+        default=0,
+        ge=0,
+        le=64,
+        description="Server processes behind HAProxy with robot affinity (docs/scale.md): "
+        "`serve` then launches them, HAProxy in front on `host`:`port`, and restarts a "
+        "process that dies. 0 = this process serves alone (no HAProxy); 1 = one process "
+        "behind HAProxy (the baseline a benchmark compares with).",
+    )
+    worker_name: str | None = Field(
+        default=None,
+        max_length=32,
+        pattern=r"^[A-Za-z0-9_-]+$",
+        description="This process's name among several behind HAProxy (set by `serve "
+        "--workers`); answered in /health and in the X-Teachrepeat-Worker header of every "
+        "response. None = not one of several.",
+    )
     concurrent_steps: int = Field(
         default=1,
         ge=1,

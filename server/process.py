@@ -63,8 +63,12 @@ def start_server(
     dashboard: bool = False,
     extra_env: dict[str, str] | None = None,
     tls: tuple[Path, Path] | None = None,
+    workers: int = 0,
 ) -> ServerProcess:
     """Run ``teachrepeat serve --db DB --port 0`` and wait until it answers ``/health``.
+
+    ``workers``: that many server processes behind HAProxy (``--workers``, docs/scale.md);
+    ``url`` is then HAProxy's address and ``proc`` the launcher.
 
     ``dashboard``: also start the dashboard on a free port (``dashboard_url``). ``tls``:
     ``(cert, key)`` to serve over HTTPS with (``--tls-cert``, ``--tls-key``); ``/health`` is
@@ -84,6 +88,7 @@ def start_server(
             "--dashboard-port",
             "0" if dashboard else "-1",
             *(["--tls-cert", str(tls[0]), "--tls-key", str(tls[1])] if tls else []),
+            *(["--workers", str(workers)] if workers else []),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -91,7 +96,7 @@ def start_server(
         env=env,
     )
     try:
-        return _wait_until_up(proc, db, admin_token, dashboard, tls)
+        return _wait_until_up(proc, db, admin_token, dashboard, tls, 90.0 if workers else 30.0)
     except BaseException:
         # not up (or the caller was interrupted, e.g. SIGTERM or Ctrl-C while the server was
         # still importing): nobody else holds the process, so stop it here
@@ -106,12 +111,13 @@ def _wait_until_up(
     admin_token: str,
     dashboard: bool,
     tls: tuple[Path, Path] | None,
+    timeout_s: float = 30.0,
 ) -> ServerProcess:
-    """Read the server's address from its output and wait until ``/health`` answers, 30 s at
-    most; ``RuntimeError`` if it does not start."""
+    """Read the server's address from its output and wait until ``/health`` answers,
+    ``timeout_s`` at most; ``RuntimeError`` if it does not start."""
     if proc.stdout is None:
         raise RuntimeError("no stdout pipe")
-    deadline = time.monotonic() + 30
+    deadline = time.monotonic() + timeout_s
     url = None
     dashboard_url = None
     lines = []
@@ -146,12 +152,12 @@ def _wait_until_up(
 
 @contextmanager
 def scratch_server(
-    name: str = "scratch.sqlite", *, extra_env: dict[str, str] | None = None
+    name: str = "scratch.sqlite", *, extra_env: dict[str, str] | None = None, workers: int = 0
 ) -> Iterator[ServerProcess]:
     """A real server on a fresh database in a temporary folder, stopped and removed on exit
-    (for benchmarks that measure a clean server)."""
+    (for benchmarks that measure a clean server); ``workers`` as in :func:`start_server`."""
     with tempfile.TemporaryDirectory() as tmp:
-        server = start_server(Path(tmp) / name, extra_env=extra_env)
+        server = start_server(Path(tmp) / name, extra_env=extra_env, workers=workers)
         try:
             yield server
         finally:

@@ -119,6 +119,22 @@ class ServiceIndex(_Model):
 # --- tours -------------------------------------------------------------------------------
 
 
+class LearnedChange(_Model):
+    """One thing a tour learned from a repeat run (docs/learning.md); remove it with
+    DELETE /tours/{tour}/learned/{id} to get the earlier behaviour back."""
+
+    id: int
+    tour: int
+    kind: Literal["transitions", "experience"] = Field(
+        description="'transitions': the run's motion counts refine the belief's advance per "
+        "edge; 'experience': the run's images, added as more appearances of the edges it drove"
+    )
+    created_at: float
+    source: str = Field(description="The run it came from: robot, task and when it started.")
+    summary: str
+    images: int = Field(description="Images of an experience (0 for transitions).")
+
+
 class TourCreate(_Model):
     name: TourName
 

@@ -42,6 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="dashboard port (default 8080; 0 = any free port; -1 = no dashboard)",
     )
     parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="run N server processes behind HAProxy on --host/--port, each robot always "
+        "on the same one, a process that dies started again (docs/scale.md; needs the "
+        "haproxy package). Default 0: this process serves alone",
+    )
+    parser.add_argument(
         "--tls-cert",
         type=Path,
         metavar="FILE",
@@ -87,7 +95,7 @@ def token_file(settings: Settings) -> Path:
 def settings_from(args: argparse.Namespace) -> Settings:
     overrides = {
         k: getattr(args, k)
-        for k in ("db", "host", "port", "tls_cert", "tls_key")
+        for k in ("db", "host", "port", "tls_cert", "tls_key", "workers")
         if getattr(args, k, None) is not None
     }
     dashboard_port = getattr(args, "dashboard_port", None)
@@ -167,6 +175,21 @@ def start_dashboard(settings: Settings, services: Services, tls: SslOptions) -> 
     return gate
 
 
+def run_launcher(settings: Settings, args: argparse.Namespace) -> int:
+    """``serve --workers N``: the processes behind HAProxy (:mod:`server.cluster`), or exit 2
+    saying why they cannot run with these settings."""
+    from server.cluster import cluster_refusal, run_cluster
+
+    dashboard_port = getattr(args, "dashboard_port", None)
+    refusal = cluster_refusal(
+        settings, dashboard_asked=dashboard_port is not None and dashboard_port >= 0
+    )
+    if refusal is not None:
+        print(f"teachrepeat serve: {refusal}", file=sys.stderr, flush=True)
+        return 2
+    return run_cluster(settings)
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -175,6 +198,8 @@ def run(args: argparse.Namespace) -> int:
     limit_malloc_arenas()
     try:
         settings = settings_from(args)
+        if settings.workers > 0:
+            return run_launcher(settings, args)
         tls = ssl_options(settings)
         login = settings.dashboard_port is not None and settings.dashboard_needs_login()
         app = create_app(settings)

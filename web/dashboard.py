@@ -49,6 +49,7 @@ from pydantic import ValidationError
 from server import schemas
 from server.errors import DomainError, NotFound
 from server.layout import GraphLayout, fine_position, graph_layout
+from server.services.learning import change_public
 from web.ambiguity import distinctiveness_text, step_lines
 from web.imagery import (
     MAP_SIZE,
@@ -67,6 +68,7 @@ from web.panels import (
     build_panels,
     error_text,
     inert,
+    learned_text,
     over_time_data,
     status_text,
     teaching_text,
@@ -209,6 +211,18 @@ class Dashboard:
         if not self._assigning:
             self._chosen = True
         self.publisher.poke()
+
+    def _learned(self, tour_id: int | None) -> list[schemas.LearnedChange]:
+        """The tour's learned changes, when it is this dashboard's household's."""
+        if tour_id is None:
+            return []
+        try:
+            if self.household is None:
+                rows = self.services.repo.learned_changes(tour_id)
+                return [change_public(r) for r in rows]
+            return self.services.learning.changes(tour_id, self.household)
+        except DomainError:
+            return []
 
     def _image(self, image_id: int) -> bytes | None:
         """A stored image's JPEG, when it is this dashboard's household's."""
@@ -424,6 +438,7 @@ class Dashboard:
         if now - self._sources_at >= SOURCES_EVERY_S:
             self._sources_at = now
             self.timeline.refresh_sources()
+            self._put_markdown("learned", c.learned, learned_text(self._learned(snap.tour_id)))
 
     def _render_step(self, snap: Snapshot) -> None:
         c = self.controls

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 import re
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -24,6 +26,7 @@ from web.imagery import MAP_SIZE, behaviour_strip, captioned, placeholder, side_
 
 if TYPE_CHECKING:
     from server.domain import TourGraph
+    from server.schemas import LearnedChange
     from web.publisher import Snapshot, StepView
 
 FloatArray = npt.NDArray[np.float64]
@@ -54,6 +57,7 @@ class Controls:
     finish: viser.GuiButtonHandle
     abort: viser.GuiButtonHandle
     map: viser.GuiImageHandle
+    learned: viser.GuiMarkdownHandle
     images: viser.GuiImageHandle
     action: viser.GuiMarkdownHandle
     strip: viser.GuiImageHandle
@@ -135,6 +139,9 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
             format="png",
         )
 
+    with gui.add_folder("Learned", expand_by_default=False):
+        learned = gui.add_markdown(learned_text(()))
+
     panel = gui.add_panel()
     with panel.add_tab("Camera and belief"):
         images = gui.add_image(
@@ -179,6 +186,7 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
         finish=finish,
         abort=abort,
         map=the_map,
+        learned=learned,
         images=images,
         action=action,
         strip=strip,
@@ -190,6 +198,19 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
         over_time=over_time,
         panel=panel,
     )
+
+
+def learned_text(changes: Sequence[LearnedChange]) -> str:
+    """The selected tour's learned changes (docs/learning.md), newest first: what, when, from
+    which run; undo one with DELETE /tours/{tour}/learned/{id}."""
+    if not changes:
+        return "*The tour has learned nothing from repeat runs.*"
+    lines = [
+        f"- **#{c.id} {c.kind}** {time.strftime('%Y-%m-%d %H:%M', time.gmtime(c.created_at))}"
+        f": {inert(c.summary)} (from {inert(c.source)})"
+        for c in sorted(changes, key=lambda c: -c.id)
+    ]
+    return "\n".join([*lines, "", "Undo one: `DELETE /tours/{tour}/learned/{id}`."])
 
 
 def belief_over_time_plot(gui: viser.GuiApi, title: str) -> viser.GuiUplotHandle:

@@ -30,6 +30,7 @@ from server.belief.appearance import (
     posterior,
     update_log_posterior,
 )
+from server.belief.learning import FilterStep
 from server.belief.model import (
     Action,
     BeliefModel,
@@ -174,6 +175,9 @@ class TrackerParams:
       motion matrices are reused from frame to frame (a 1% error in the expected advance).
     * ``top_k`` (5): how many upper states :attr:`BeliefSummary.top_states` lists.
     * ``smoother_lag`` (10): steps kept for the fixed-lag smoother (0 disables it).
+    * ``keep_run`` (0): keep up to this many filter steps of the run since the last reset
+      (:meth:`Tracker.run`), for learning transitions from it (:mod:`server.belief.learning`;
+      two ``(n_fine,)`` arrays per step). 0: keep none.
     * ``appearance``: how the belief over appearance models follows the evidence when
       :meth:`Tracker.step` gets one likelihood per model (:mod:`server.belief.appearance`).
     """
@@ -190,6 +194,7 @@ class TrackerParams:
     motion_quantum: float = 0.02
     top_k: int = 5
     smoother_lag: int = 10
+    keep_run: int = 0
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
 
     def __post_init__(self) -> None:
@@ -203,8 +208,8 @@ class TrackerParams:
             raise ValueError("surprise_teleport must be in [0, 1]")
         if not self.likelihood_floor > 0:
             raise ValueError("likelihood_floor must be > 0")
-        if self.top_k < 1 or self.smoother_lag < 0:
-            raise ValueError("top_k must be >= 1 and smoother_lag >= 0")
+        if self.top_k < 1 or self.smoother_lag < 0 or self.keep_run < 0:
+            raise ValueError("top_k must be >= 1, smoother_lag and keep_run >= 0")
 
 
 @dataclass(frozen=True)
@@ -351,6 +356,7 @@ class Tracker:
         self._streak = 0
         self._steps = 0
         self._appearance = np.zeros(0)  # log posterior over appearance models; empty = none yet
+        self._run: list[FilterStep] = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -365,6 +371,7 @@ class Tracker:
             raise BeliefError("belief must have positive mass")
         self.reset()
         self._belief = b / total
+        self._run = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -425,6 +432,8 @@ class Tracker:
         self._steps += 1
         if self._smoother is not None:
             self._smoother.push(op, eps, lik, post)
+        if len(self._run) <= p.keep_run:
+            self._run.append(FilterStep(op, eps, lik, post))
         # conservative "localised"
         state = m.upper_mass(post)
         top = int(np.argmax(state))
@@ -462,6 +471,11 @@ class Tracker:
                 v = math.exp(round(math.log(dist) / step) * step) / dt_q
             dt = dt_q
         return self.model.expected_advance(v=v, dt=dt)
+
+    def run(self) -> list[FilterStep]:
+        """The kept filter steps since the last reset, the start first (at most
+        ``1 + keep_run``; :func:`server.belief.learning.expected_motion_counts` takes them)."""
+        return list(self._run)
 
     def smoothed(self) -> SmoothedTrajectory | None:
         """Fixed-lag smoothed estimate of the last ``smoother_lag`` steps (None if disabled)."""

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from server.bench.common import corridor_marks, default_data_dir, stats, write_json
+from server.bench.profile import STAGES, Sampler
 
 PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024 if hasattr(os, "sysconf") else 4.0
 
@@ -65,11 +66,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--rss-every", type=float, default=1.0, help="RSS sampling period, s")
     parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="sample the server with py-spy over the measured window and report where its "
+        "CPU goes per stage of a frame (decode, features, retrieval, belief, policy, homing, "
+        "motion, encode, persist, http; server/bench/profile.py); py-spy's own CPU is on the "
+        "same cores",
+    )
+    parser.add_argument(
         "--server-env",
         action="append",
         default=[],
         metavar="NAME=VALUE",
         help="extra environment of the server process (repeatable), e.g. OPENBLAS_NUM_THREADS=1",
+    )
+    parser.add_argument(
+        "--processes",
+        default=None,
+        metavar="P[,P...]",
+        help="run the server as `serve --workers P` (HAProxy in front of P processes, "
+        "docs/scale.md) and measure through HAProxy, with each process's CPU and RSS; "
+        "1,2 alternates both per robot count. Default: one process, no HAProxy",
     )
     parser.add_argument("--data", type=Path, default=None, help="image data folder")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
@@ -207,6 +224,7 @@ def one_run(
     rss_every_s: float,
     server_env: dict[str, str] | None = None,
     lockstep: bool = False,
+    profile: bool = False,
 ) -> dict[str, Any]:
     """Start a fresh server, teach, drive ``robots`` clients; the figures of this run.
 
@@ -263,15 +281,21 @@ def one_run(
             t.start()
         time.sleep(max(0.0, measure_from - time.monotonic()))
         cpu0, wall0 = cpu_seconds(pid), time.monotonic()
+        spy = None
+        if profile:
+            spy = Sampler(pid, seconds, Path(server.db).parent / "profile.txt")
+            spy.start()
         for t in threads:
             t.join(timeout=seconds + warmup_s + 60)
         cpu1, wall1 = cpu_seconds(pid), time.monotonic()
         sampler.stop()
+        stages = None if spy is None else spy.finish()
         alive = server.proc.poll() is None
     measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
     errors = [e for log in logs.values() for e in log.errors]
     after = [mb for (t, mb) in sampler.samples if t >= warmup_s]
     latency = {k: (v * 1000.0 if k != "n" else v) for k, v in stats(measured).items()}
+    cpu_ms = 1000.0 * (cpu1 - cpu0) / max(len(measured), 1)
     return {
         "robots": robots,
         "rate_hz": rate_hz,
@@ -294,8 +318,22 @@ def one_run(
         },
         "rss_growth": after[-1] / after[0] if len(after) >= 2 else float("nan"),
         "server_cpu_pct": 100.0 * (cpu1 - cpu0) / max(wall1 - wall0, 1e-9),
+        "cpu_ms_per_frame": cpu_ms,
+        "stages": None if stages is None else stages.as_json(cpu_ms),
         "server_alive": alive,
     }
+
+
+def stage_lines(stages: dict[str, Any]) -> str:
+    """The per-stage profile of a run as printed lines: share of the samples and ms per frame."""
+    per_frame = stages.get("cpu_ms_per_frame", {})
+    lines = [
+        f"    {s:<10s} {100 * stages['fraction'][s]:5.1f} %  "
+        f"{per_frame.get(s, float('nan')):6.2f} ms"
+        for s in STAGES
+    ]
+    lines.append(f"    ({stages['samples']} running samples, {stages['waiting_samples']} waiting)")
+    return "\n".join(lines)
 
 
 def meets(result: dict[str, Any], p99_ms: float) -> bool:
@@ -308,6 +346,13 @@ def meets(result: dict[str, Any], p99_ms: float) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.processes is not None:  # through HAProxy, P processes (docs/scale.md)
+        from server.bench import load_cluster
+
+        if args.profile:
+            print("--profile samples one server process: run it without --processes")
+            return 2
+        return load_cluster.run(args)
     counts = [int(x) for x in args.sweep.split(",") if x.strip()] if args.sweep else [args.robots]
     if not counts or min(counts) < 1:
         print("robot counts must be positive integers, e.g. --sweep 1,5,10,20")
@@ -338,6 +383,7 @@ def run(args: argparse.Namespace) -> int:
             rss_every_s=args.rss_every,
             server_env=server_env,
             lockstep=args.lockstep,
+            profile=args.profile,
         )
         result["meets_target"] = meets(result, args.p99_ms)
         runs.append(result)
@@ -345,7 +391,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"R={robots:3d}: {result['fps']:6.1f} frames/s of {result['offered_fps']:.0f} offered, "
             f"latency p50 {lat['p50']:.1f} / p95 {lat['p95']:.1f} / p99 {lat['p99']:.1f} ms, "
-            f"{result['errors']} errors, server CPU {result['server_cpu_pct']:.0f} %, "
+            f"{result['errors']} errors, server CPU {result['server_cpu_pct']:.0f} % "
+            f"({result['cpu_ms_per_frame']:.2f} ms per frame), "
             f"RSS {result['rss_mb']['first_after_warmup']:.0f} -> {result['rss_mb']['last']:.0f} "
             f"MiB (x{result['rss_growth']:.3f})"
             + ("" if result["meets_target"] else "  [misses target]"),
@@ -353,6 +400,8 @@ def run(args: argparse.Namespace) -> int:
         )
         for sample in result["error_samples"]:
             print(f"    error: {sample}")
+        if result["stages"] is not None:
+            print(stage_lines(result["stages"]), flush=True)
     ok = [r["robots"] for r in runs if r["meets_target"]]
     largest = max(ok) if ok else None
     if len(runs) > 1:
@@ -361,7 +410,11 @@ def run(args: argparse.Namespace) -> int:
     write_json(
         args.json,
         {
-            **{k: last[k] for k in ("robots", "fps", "latency_ms", "errors", "rss_growth")},
+            **{
+                k: last[k]
+                for k in ("robots", "fps", "latency_ms", "errors", "rss_growth", "stages")
+            },
+            "cpu_ms_per_frame": last["cpu_ms_per_frame"],
             "rss_mb": last["rss_mb"],
             "runs": runs,
             "largest_robots_meeting_target": largest,

@@ -45,6 +45,7 @@ from server.bench.localize_ambiguity import figures as ambiguity_figures
 from server.bench.localize_ambiguity import localiser
 
 if TYPE_CHECKING:
+    from server.belief.learning import FilterStep
     from server.belief.mcl import MonteCarloLocaliser
     from server.belief.model import Action, TransitionParams
     from server.belief.tracker import TrackerParams
@@ -167,6 +168,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also run Monte-Carlo localisation along the replayed route, laid on a line "
         "(server/bench/localize_ambiguity.py), and report its error in metres",
+    )
+    parser.add_argument(
+        "--query-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="replay only every N-th query frame: a robot driving N times the taught pace "
+        "while its odometry says the taught pace (default 1; docs/learning.md)",
+    )
+    parser.add_argument(
+        "--learn-transitions",
+        action="store_true",
+        help="also report every figure with learned transitions (001 s10.1): learned on one "
+        "half of the query traversal, scored on the other, both ways (docs/learning.md)",
     )
     parser.add_argument("--no-table1", action="store_true", help="skip the Table 1 protocol")
     parser.add_argument(
@@ -503,6 +518,19 @@ class Replay:
     one model)."""
     mcl_xy: list[tuple[float, float]] = field(default_factory=list)
     """Per frame, Monte-Carlo localisation's position (``--mcl``; docs/ambiguity.md)."""
+    observations: list[Observation] = field(default_factory=list)
+    """Per frame, what the engine said (to replay the tracker alone, ``--learn-transitions``)."""
+    run: list[FilterStep] = field(default_factory=list)
+    """The tracker's steps (with ``TrackerParams.keep_run``), for learning transitions."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One frame's engine answer: ``(K, n_fine)`` likelihoods, the retrieval's best image,
+    the change-robust model's share is not kept (a tracker-only replay recomputes it)."""
+
+    likelihood: FloatArray
+    best_image: int
 
 
 def next_action(decision_action: Action, mode: str) -> Action:
@@ -529,9 +557,13 @@ def replay(
     action_mode: str,
     progress: bool = True,
     mcl: MonteCarloLocaliser | None = None,
+    observations: Sequence[Observation] | None = None,
+    advance_scale: FloatArray | None = None,
 ) -> Replay:
     """Drive the query traversal through engine, tracker and policy (see the module doc);
-    with ``mcl``, Monte-Carlo localisation beside them."""
+    with ``mcl``, Monte-Carlo localisation beside them. ``observations`` (one per query frame,
+    from an earlier replay's :attr:`Replay.observations`) skip the engine; ``advance_scale``
+    gives the belief model learned transitions (:mod:`server.belief.learning`)."""
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
     from server.policy.costs import CostParams, cost_to_goal
@@ -539,7 +571,7 @@ def replay(
     from server.vision.features import extract
 
     graph = tour.graph
-    model = build_model(graph, transitions)
+    model = build_model(graph, transitions, advance_scale=advance_scale)
     model.warm_up()
     tracker = Tracker(model, tracker_params)
     goal = graph.n_locations - 1
@@ -551,11 +583,19 @@ def replay(
     action = Action.navigate(None)
     for i, (qf, img) in enumerate(zip(query_frames, query_images, strict=True)):
         t0 = time.perf_counter()
-        feats = extract(img, fp)
-        t1 = time.perf_counter()
-        sims = index.query_models(feats, n_states=graph.n_states)
-        lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
-        sim = sims[0]  # ir_only: retrieval with the tour's own weights
+        if observations is None:
+            feats = extract(img, fp)
+            t1 = time.perf_counter()
+            sims = index.query_models(feats, n_states=graph.n_states)
+            lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
+            best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
+            if mcl is not None:
+                pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
+                out.mcl_xy.append((pose.x, pose.y))
+        else:
+            t1 = t0
+            lik, best = observations[i].likelihood, observations[i].best_image
+        out.observations.append(Observation(lik, best))
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT)
         decision = decide(graph, summary.belief, goal, costs)
@@ -571,11 +611,8 @@ def replay(
                 if 0 <= k < n and (j == 0 or smoothed[k] is None or i == n - 1):
                     smoothed[k] = int(tour.fine_frame[int(f)])
         out.query.append(int(qf))
-        out.ir_only.append(int(tour.image_frame[int(np.argmax(sim.image))]))
-        out.changed.append(float(summary.appearance[-1]) if len(sims) > 1 else 0.0)
-        if mcl is not None:
-            pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sim.image)
-            out.mcl_xy.append((pose.x, pose.y))
+        out.ir_only.append(int(tour.image_frame[best]))
+        out.changed.append(float(summary.appearance[-1]) if len(lik) > 1 else 0.0)
         out.tracker.append(int(tour.fine_frame[int(np.argmax(summary.belief))]))
         out.localised_frames.append(
             tour.state_frames[summary.localised_state]
@@ -589,6 +626,7 @@ def replay(
         if progress and (i + 1) % 200 == 0:
             print(f"  {i + 1}/{n} frames")
     out.smoother = [s if s is not None else t for s, t in zip(smoothed, out.tracker, strict=True)]
+    out.run = tracker.run()
     return out
 
 
@@ -882,6 +920,8 @@ class RunSettings:
     action: str
     learn_params: LearnParams = field(default_factory=lambda: _learn_params(0))
     mcl: bool = False
+    learn_transitions: bool = False
+    tolerances: tuple[int, ...] = REPORT_TOLERANCES
 
 
 @dataclass(frozen=True)
@@ -915,6 +955,7 @@ class DirectionRun:
     replay: Replay
     errors: dict[str, FloatArray]
     build_s: float
+    learned: dict[str, Any] | None = None
 
 
 def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
@@ -953,7 +994,12 @@ def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
     )
     estimates = {"ir_only": res.ir_only, "tracker": res.tracker, "smoother": res.smoother}
     errs = {m: errors(res.query, estimates[m], plan.gt) for m in METHODS}
-    return DirectionRun(plan, tour, index, ref_feats, res, errs, build_s)
+    d = DirectionRun(plan, tour, index, ref_feats, res, errs, build_s)
+    if settings.learn_transitions:
+        from server.bench.localize_learn import learned_figures
+
+        d = dataclasses.replace(d, learned=learned_figures(d, settings, settings.tolerances))
+    return d
 
 
 def per_frame(res: Replay) -> dict[str, Any]:
@@ -1014,6 +1060,8 @@ def direction_summary(
     }
     if halves:
         out["halves"] = halves_scores(d.errors, tols)
+    if d.learned is not None:
+        out["learned_transitions"] = d.learned
     return out
 
 
@@ -1022,12 +1070,16 @@ def plan_directions(
 ) -> list[DirectionPlan]:
     """The forward run and, with ``--both-directions``, the reverse one (the traversals
     swapped, the ground truth inverted), each restricted to ``--half``; ``ValueError`` if a
-    run would have too few frames."""
+    run would have too few frames. With ``--query-every N`` each run replays every N-th of
+    its query frames."""
+    every = max(1, int(getattr(args, "query_every", 1)))
     qry, ref = select_half(qry_frames, ref_frames, gt, args.half)
+    qry = qry[::every]
     plans = [DirectionPlan("forward", args.reference, args.query, gt, args.gt, ref, qry)]
     if args.both_directions:
         inv = gt.inverted()
         qry, ref = select_half(ref_frames, qry_frames, inv, args.half)
+        qry = qry[::every]
         spec = args.gt if gt.matches is None else f"{args.gt} (inverted)"
         plans.append(DirectionPlan("reverse", args.query, args.reference, inv, spec, ref, qry))
     for plan in plans:
@@ -1081,6 +1133,8 @@ def run(args: argparse.Namespace) -> int:
         args.action,
         _learn_params(args.learn_changed),
         mcl=args.mcl,
+        learn_transitions=args.learn_transitions,
+        tolerances=tuple(report_tolerances(int(args.tolerance))),
     )
     tol = int(args.tolerance)
     print(f"tolerance {tol}, half {args.half}")
@@ -1116,6 +1170,7 @@ def run(args: argparse.Namespace) -> int:
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
         "likelihood_power": tracker_params.likelihood_power,
+        "query_every": args.query_every,
         "build_s": fwd.build_s,
     }
     for name, e in fwd.errors.items():
@@ -1129,6 +1184,8 @@ def run(args: argparse.Namespace) -> int:
         if key in f:
             result[key] = f[key]
     result["localised_fraction"] = f["localised_fraction"]
+    if "learned_transitions" in f:
+        result["learned_transitions"] = f["learned_transitions"]
     result["recall_curve"] = {
         "tolerance": list(CURVE_TOLERANCES),
         **{
@@ -1200,6 +1257,10 @@ def _print(r: dict[str, Any]) -> None:
             m = d["mcl"]
             line += f", MCL error p50 {m['median_error_m']:.2f} m p90 {m['p90_error_m']:.2f} m"
         print(line)
+        if "learned_transitions" in d:
+            from server.bench.localize_learn import print_figures
+
+            print_figures(name, d["learned_transitions"])
     print(
         f"belief + policy step p50 {r['step_ms_p50']:.3f} ms, engine p50 "
         f"{r['engine_ms']['p50']:.2f} ms/frame (forward)"

@@ -65,6 +65,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run only these trial numbers (comma-separated, e.g. 2,5,14): each goes exactly "
         "as it does in the full run",
     )
+    parser.add_argument(
+        "--experience-runs",
+        type=int,
+        default=0,
+        metavar="K",
+        help="before the trials of each plan and condition, K supervised runs in that "
+        "condition (their own trial numbers); each that arrives adds its images as an "
+        "experience (POST /robots/{robot}/learn; docs/learning.md). Needs learning.collect, "
+        "set for you",
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     add_set_argument(
         parser,
@@ -156,6 +166,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "median_time_s": stats([r["time_s"] for r in ok])["p50"],
         "median_free_space_ratio": stats([r["free_space_ratio"] for r in ok])["p50"],
         "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
+        "experiences_added": max((int(r.get("experiences_added", 0)) for r in rows), default=0),
         "failures_by_cause": {c: causes[c] for c in CAUSES_ORDER if causes[c]},
         "failures_by_behaviour": dict(sorted(behaviours.items())),
         **localisation_summary(rows),
@@ -208,6 +219,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.mcl:
         args.settings = [*args.settings, ("mcl.enabled", True)]
+    if args.experience_runs < 0:
+        print(f"{prog}: --experience-runs must be >= 0", file=sys.stderr)
+        return 2
+    if args.experience_runs:
+        args.settings = [("learning.collect", True), ("learning.run_steps", 0), *args.settings]
     try:
         env = _navigation_env(args.settings)
     except ValueError as exc:
@@ -237,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
             trace=None if args.trace is None else str(args.trace),
             record=None if args.record is None else str(args.record.resolve()),
             record_all=args.record_all,
+            experience_runs=args.experience_runs,
         )
         bar = tqdm(total=len(specs), desc="trials", unit="trial")
 
@@ -298,6 +315,7 @@ def run(args: argparse.Namespace) -> int:
         "trials_per_group": len(trials),
         "only": None if args.only is None else sorted(args.only),
         "max_steps": args.max_steps,
+        "experience_runs": args.experience_runs,
         "settings": dict(args.settings),
         "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),
         "workers": args.workers,

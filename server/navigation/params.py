@@ -54,6 +54,31 @@ class AmbiguityParams:
 
 
 @dataclass(frozen=True)
+class LearningParams:
+    """Learning from repeat runs (docs/learning.md). Off by default: nothing is collected and
+    nothing learned; a tour's stored changes (``GET /tours/{id}/learned``) are used whenever
+    it has some.
+
+    * ``collect`` (False): keep, per robot, what its task underway could teach: the frames
+      localised on an edge (one per taught image, the last) and the tracker's steps (up to
+      ``run_steps``). ``POST /robots/{robot}/learn`` then stores them as learned changes when
+      the task arrived.
+    * ``experiences_per_image`` (2): at most this many experiences per taught image; adding
+      one more drops the oldest.
+    * ``run_steps`` (3000 frames): the tracker steps kept for learned transitions (two
+      ``(n_fine,)`` float64 arrays each; 0: learn no transitions).
+    """
+
+    collect: bool = False
+    experiences_per_image: int = 2
+    run_steps: int = 3000
+
+    def __post_init__(self) -> None:
+        if self.experiences_per_image < 0 or self.run_steps < 0:
+            raise ValueError("experiences_per_image and run_steps must be >= 0")
+
+
+@dataclass(frozen=True)
 class NavigationParams:
     """Everything that tunes navigation, with documented defaults.
 
@@ -224,6 +249,7 @@ class NavigationParams:
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     mcl: MclParams = field(default_factory=MclParams)
+    learning: LearningParams = field(default_factory=LearningParams)
 
     def __post_init__(self) -> None:
         if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):

@@ -33,7 +33,9 @@ class TourRuntime:
         params: NavigationParams,
         *,
         version: int = 0,
+        advance_scale: npt.ArrayLike | None = None,
     ) -> None:
+        """``advance_scale``: learned transitions (``(n_edges,)``, docs/learning.md)."""
         if len(features) != graph.n_images:
             raise ValueError(f"{len(features)} features for {graph.n_images} images")
         self.graph = graph
@@ -43,7 +45,9 @@ class TourRuntime:
         self.index = TourIndex(params.engine)
         if graph.n_images:
             self.index.add(self.features, graph.image_state)
-        self.model: BeliefModel = build_model(graph, params.transitions)
+        self.model: BeliefModel = build_model(
+            graph, params.transitions, advance_scale=advance_scale
+        )
         # the one trade-off of least-ambiguous routes, for the cost to go and the votes alike
         weight = params.ambiguity.route_weight
         self.cost_params = replace(params.costs, ambiguity_weight=weight)
@@ -149,6 +153,13 @@ class TourRuntime:
         """Canonical image index of the ``k``-th image of ``edge``."""
         n = self.graph.edges[edge].n_images
         return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
+
+    def add_experiences(self, items: Sequence[tuple[int, ImageFeatures]]) -> int:
+        """Add ``(canonical taught image index, features)`` experiences to the index (after
+        the weights and the distinctiveness: those stay the taught images'); how many."""
+        if items:
+            self.index.add_experiences([f for _, f in items], [i for i, _ in items])
+        return len(items)
 
     def observe(self, features: ImageFeatures) -> tuple[tuple[Similarity, ...], FloatArray]:
         """Engine similarities of a frame under every appearance model

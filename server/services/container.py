@@ -12,6 +12,7 @@ from server.navigation import NavigationParams
 from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
 from server.services.households import HouseholdService, Identities, LoginParams
+from server.services.learning import LearningService
 from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
@@ -30,6 +31,7 @@ class Services:
     teaching: TeachingService
     navigation: NavigationService
     recordings: Recorder
+    learning: LearningService
 
     @classmethod
     def build(
@@ -44,9 +46,11 @@ class Services:
         recordings: Path,
         record_all: bool = False,
         retention: Retention | None = None,
+        shared_store: bool = False,
     ) -> Services:
         """``recordings``: the folder of the recordings (created on first use);
-        ``record_all``: record every teaching tour and navigation task."""
+        ``record_all``: record every teaching tour and navigation task; ``shared_store``: other
+        server processes write to the same database (:class:`NavigationService`)."""
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
             repo,
@@ -54,6 +58,7 @@ class Services:
             navigation,
             is_teaching=lambda robot: repo.teaching(robot) is not None,
             concurrent_steps=concurrent_steps,
+            shared_store=shared_store,
         )
         teaching.is_navigating = nav.is_navigating
         teaching.on_change = nav.tour_changed
@@ -65,6 +70,8 @@ class Services:
         )
         nav.observers.append(recorder)
         teaching.observers.append(recorder)
+        learning = LearningService(repo, nav.params, nav.tour_changed)
+        nav.observers.append(learning)
         identities = Identities(repo)
         return cls(
             repo=repo,
@@ -77,6 +84,7 @@ class Services:
             teaching=teaching,
             navigation=nav,
             recordings=recorder,
+            learning=learning,
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:

@@ -8,6 +8,7 @@ server resumes a navigation where it was instead of starting from a uniform beli
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import threading
 import time
@@ -16,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
+from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary
 from server.domain import TourGraph
@@ -34,6 +36,10 @@ BELIEF_SNAPSHOT_S = 1.0
 """Wall-clock seconds between two persisted belief snapshots of a navigating robot."""
 PREBUILD_DELAY_S = 1.0
 """After teaching changes a tour, wait this long for more changes before preparing it."""
+STAMP_CHECK_S = 1.0
+"""Seconds between two looks at whether another server process on the same database changed a
+tour in use (:meth:`Repo.tour_stamp`; several processes behind HAProxy, docs/scale.md). A goto
+always looks."""
 
 
 class NavigationObserver:
@@ -74,22 +80,33 @@ class NavigationService:
         is_teaching: Callable[[str], bool] = lambda robot: False,
         clock: Callable[[], float] = time.time,
         concurrent_steps: int = 1,
+        shared_store: bool = False,
     ) -> None:
         """``concurrent_steps``: frames turned into a command at once over all robots
         (features, belief, command); more wait their turn. Decoding the JPEG and building a
         tour's runtime are not counted, so a large frame or a robot whose tour is being
-        prepared does not hold up the others."""
+        prepared does not hold up the others. ``shared_store``: other server processes write
+        to the same database (``serve --workers``), so a tour may change without this process
+        being told; its stamp is then compared (:meth:`Repo.tour_stamp`). A single process is
+        told of every change and never looks."""
         if concurrent_steps < 1:
             raise ValueError("concurrent_steps must be at least 1")
         self.repo = repo
+        self.shared_store = shared_store
         self.limits = limits
-        self.params = params if params is not None else NavigationParams()
+        params = params if params is not None else NavigationParams()
+        if params.learning.collect and params.tracker.keep_run < params.learning.run_steps:
+            tracker = dataclasses.replace(params.tracker, keep_run=params.learning.run_steps)
+            params = dataclasses.replace(params, tracker=tracker)
+        self.params = params
         self.is_teaching = is_teaching
         self.clock = clock
         self._steps = threading.BoundedSemaphore(concurrent_steps)
         self._runtimes: dict[int, TourRuntime] = {}
         self._changes: dict[int, int] = {}  # tour_changed calls per tour
         self._built_from: dict[int, int] = {}  # the tour_changed count each runtime was built at
+        self._stamps: dict[int, tuple[int, ...]] = {}  # the tour_stamp each runtime was built at
+        self._stamp_checked: dict[int, float] = {}  # monotonic time of the last look
         self._sessions: dict[str, RobotSession] = {}
         self._tour_of: dict[str, int] = {}
         self._snapshot_at: dict[str, float] = {}
@@ -155,6 +172,7 @@ class NavigationService:
         again after the tour changed. With ``wait`` (a new task) a build under way is waited
         for; without (a step of a task under way) the previous runtime is returned meanwhile,
         and the session moves to the new one at a later step."""
+        self._check_stamp(tour_id, always=wait)
         with self._lock:
             rt = self._runtimes.get(tour_id)
             build_lock = self._build_locks.setdefault(tour_id, threading.Lock())
@@ -166,13 +184,39 @@ class NavigationService:
                 if rt is not None and self._is_current(tour_id):
                     return rt
                 changes = self._changes.get(tour_id, 0)
+            stamp = self.repo.tour_stamp(tour_id)  # before: a change meanwhile is seen later
             rt = self._build(tour_id, version=0 if rt is None else rt.version + 1)
             with self._lock:
+                self._stamps[tour_id] = stamp
                 # current only if the tour did not change while it was built; a caller that
                 # comes during the build waits for it instead of taking the previous runtime
                 self._runtimes[tour_id] = rt
                 self._built_from[tour_id] = changes
             return rt
+
+    def _check_stamp(self, tour_id: int, *, always: bool) -> None:
+        """Whether another process changed the tour since its runtime was built (at most every
+        :data:`STAMP_CHECK_S` unless ``always``); if so, as if teaching here had changed it."""
+        if not self.shared_store:
+            return
+        now = time.monotonic()
+        with self._lock:
+            built = self._stamps.get(tour_id)
+            last = self._stamp_checked.get(tour_id)
+            if built is None or (not always and last is not None and now - last < STAMP_CHECK_S):
+                return
+            if not self._is_current(tour_id):  # a rebuild is due anyway; its stamp is newer
+                return
+            self._stamp_checked[tour_id] = now
+        stamp = self.repo.tour_stamp(tour_id)
+        if stamp == built:
+            return
+        with self._lock:
+            if self._stamps.get(tour_id) != built:  # another thread noticed it first
+                return
+            self._stamps[tour_id] = stamp
+            self._changes[tour_id] = self._changes.get(tour_id, 0) + 1
+        log.info("tour %d changed in another server process: preparing it again", tour_id)
 
     def _is_current(self, tour_id: int) -> bool:
         """Whether the stored runtime was built after the tour's last change (under the lock)."""
@@ -182,12 +226,26 @@ class NavigationService:
         graph = self.repo.graph(tour_id)
         if graph.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
-        rt = TourRuntime(graph, self._features(graph), self.params, version=version)
+        scale = learned_scale(self.repo, tour_id, graph.n_edges)
+        rt = TourRuntime(
+            graph, self._features(graph), self.params, version=version, advance_scale=scale
+        )
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
         self._distinctiveness(tour_id, rt)
+        self._experiences(tour_id, rt)
         return rt
+
+    def _experiences(self, tour_id: int, rt: TourRuntime) -> None:
+        """The tour's stored experiences (docs/learning.md) into its index."""
+        canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
+        items = []
+        for image_id, blob in self.repo.experiences(tour_id):
+            feats = _stored_features(blob, self.params.features)
+            if feats is not None and image_id in canonical:
+                items.append((canonical[image_id], feats))
+        rt.add_experiences(items)
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else
@@ -483,6 +541,21 @@ class NavigationService:
         """A copy of the live sessions (for the dashboard)."""
         with self._lock:
             return dict(self._sessions)
+
+
+def learned_scale(repo: Repo, tour_id: int, n_edges: int) -> np.ndarray | None:
+    """The tour's learned advance scale from its stored transition changes (None: none, the
+    taught model; docs/learning.md)."""
+    blobs = repo.transition_counts(tour_id)
+    total = TransitionCounts.zeros(n_edges)
+    used = 0
+    for blob in blobs:
+        try:
+            total = total.plus(TransitionCounts.from_bytes(blob, n_edges))
+            used += 1
+        except ValueError:
+            continue  # learned before the tour changed shape: no longer applies
+    return advance_scale(total) if used else None
 
 
 def _location_index(graph: TourGraph, location_id: int) -> int | None:

@@ -223,6 +223,40 @@ def image_poses_and_distinctiveness(db: sqlite_utils.Database) -> None:
     db.execute("ALTER TABLE tours ADD COLUMN entropy_images INTEGER")
 
 
+@migration(5)
+def learned_changes(db: sqlite_utils.Database) -> None:
+    """What the robot learned from its repeat runs, per tour, each change undoable
+    (docs/learning.md). ``learned_changes``: one row per change, its ``kind`` ('transitions':
+    ``counts`` holds the run's expected motion counts, ``(3, n_edges)`` float64; 'experience':
+    its images are in ``experiences``), when and from which run (``source``, e.g. the robot and
+    the task's start). ``experiences``: an image of a run kept as another appearance of a taught
+    image (``image_id``), with its engine features. Tables are only added: nothing is lost."""
+    db.execute(
+        """
+        CREATE TABLE learned_changes (
+            id INTEGER PRIMARY KEY,
+            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
+            kind TEXT NOT NULL CHECK (kind IN ('transitions', 'experience')),
+            created_at REAL NOT NULL,
+            source TEXT NOT NULL,              -- the run it came from
+            summary TEXT NOT NULL,             -- one line for people
+            counts BLOB                        -- 'transitions': float64 (3, n_edges)
+        )"""
+    )
+    db.execute("CREATE INDEX learned_changes_tour ON learned_changes(tour_id)")
+    db.execute(
+        """
+        CREATE TABLE experiences (
+            id INTEGER PRIMARY KEY,
+            change_id INTEGER NOT NULL REFERENCES learned_changes(id) ON DELETE CASCADE,
+            image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
+            features BLOB NOT NULL,            -- ImageFeatures.to_bytes()
+            created_at REAL NOT NULL
+        )"""
+    )
+    db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
+
+
 def current_version(db: sqlite_utils.Database) -> int:
     if "schema_migrations" not in db.table_names():
         return 0
@@ -246,6 +280,12 @@ def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
         if rebuilds:
             conn.execute("PRAGMA foreign_keys = OFF")  # a no-op inside a transaction
         conn.execute("BEGIN IMMEDIATE")
+        if current_version(db) >= number:  # another process applied it while we waited
+            conn.execute("ROLLBACK")
+            if rebuilds and keys_on:
+                conn.execute("PRAGMA foreign_keys = ON")
+            version = number
+            continue
         try:
             fn(db)
             broken = conn.execute("PRAGMA foreign_key_check").fetchall() if rebuilds else []

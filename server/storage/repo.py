@@ -137,6 +137,20 @@ class NavigationRow:
     belief_images: int | None = None
 
 
+@dataclass(frozen=True)
+class LearnedChangeRow:
+    """One learned change of a tour (migration 5): ``kind`` 'transitions' or 'experience',
+    ``images``: the experience's images (0 for transitions)."""
+
+    id: int
+    tour_id: int
+    kind: str
+    created_at: float
+    source: str
+    summary: str
+    images: int
+
+
 class Repo:
     """Typed access to one teachrepeat database file (or ``":memory:"``)."""
 
@@ -380,6 +394,23 @@ class Repo:
             (tour_id, tour_id),
         )[0]
         return int(row[0]), int(row[1])
+
+    def tour_stamp(self, tour_id: int) -> tuple[int, ...]:
+        """What changes whenever teaching changes the tour's graph: the count and largest id
+        of its places, paths and stored images (not those on a robot's open path). Another
+        server process on the same file compares it with the stamp its runtime was built
+        from (docs/scale.md)."""
+        row = self._q(
+            "SELECT (SELECT count(*) FROM locations WHERE tour_id = ?1),"
+            " (SELECT coalesce(max(id), 0) FROM locations WHERE tour_id = ?1),"
+            " (SELECT count(*) FROM edges WHERE tour_id = ?1),"
+            " (SELECT coalesce(max(id), 0) FROM edges WHERE tour_id = ?1),"
+            " (SELECT count(*) FROM images WHERE tour_id = ?1 AND pending_robot IS NULL),"
+            " (SELECT coalesce(max(id), 0) FROM images"
+            "  WHERE tour_id = ?1 AND pending_robot IS NULL)",
+            (tour_id,),
+        )[0]
+        return tuple(int(x) for x in row)
 
     def tour_weights(self, tour_id: int) -> tuple[bytes | None, int | None]:
         rows = self._q("SELECT weights, weights_images FROM tours WHERE id = ?", (tour_id,))
@@ -672,6 +703,84 @@ class Repo:
             self.db.conn.executemany(
                 "UPDATE images SET features = ? WHERE id = ?", [(b, i) for i, b in items]
             )
+
+    # --- learned changes (migration 5) ---------------------------------------------------
+
+    def add_learned_change(
+        self,
+        tour_id: int,
+        kind: str,
+        *,
+        source: str,
+        summary: str,
+        now: float,
+        counts: bytes | None = None,
+        experiences: Sequence[tuple[int, bytes]] = (),
+        max_per_image: int | None = None,
+    ) -> int:
+        """Store one change with its ``experiences`` (``(image id, features)``); with
+        ``max_per_image``, the oldest experiences of an image beyond it are dropped (their
+        change keeps its other images). Returns the change's id."""
+        with self.transaction():
+            change = self._x(
+                "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary, counts) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (tour_id, kind, now, source, summary, counts),
+            )
+            for image_id, blob in experiences:
+                self._x(
+                    "INSERT INTO experiences (change_id, image_id, features, created_at) "
+                    "VALUES (?, ?, ?, ?)",
+                    (change, int(image_id), blob, now),
+                )
+                if max_per_image is not None:
+                    self._x(
+                        "DELETE FROM experiences WHERE image_id = ? AND id NOT IN (SELECT id "
+                        "FROM experiences WHERE image_id = ? ORDER BY id DESC LIMIT ?)",
+                        (int(image_id), int(image_id), int(max_per_image)),
+                    )
+        return change
+
+    def learned_changes(self, tour_id: int) -> list[LearnedChangeRow]:
+        """The tour's learned changes, oldest first, each with its number of images."""
+        rows = self._q(
+            "SELECT c.id, c.tour_id, c.kind, c.created_at, c.source, c.summary, "
+            "(SELECT COUNT(*) FROM experiences e WHERE e.change_id = c.id) "
+            "FROM learned_changes c WHERE c.tour_id = ? ORDER BY c.id",
+            (tour_id,),
+        )
+        return [LearnedChangeRow(*r) for r in rows]
+
+    def remove_learned_change(self, tour_id: int, change_id: int) -> None:
+        """Delete the change and its experiences; NotFound when the tour has no such change."""
+        with self.transaction():
+            rows = self._q(
+                "SELECT id FROM learned_changes WHERE id = ? AND tour_id = ?", (change_id, tour_id)
+            )
+            if not rows:
+                raise NotFound(
+                    f"tour {tour_id} has no learned change {change_id}; "
+                    f"GET /tours/{tour_id}/learned lists them"
+                )
+            self._x("DELETE FROM learned_changes WHERE id = ?", (change_id,))
+
+    def transition_counts(self, tour_id: int) -> list[bytes]:
+        """The stored counts of every 'transitions' change of the tour, oldest first."""
+        rows = self._q(
+            "SELECT counts FROM learned_changes WHERE tour_id = ? AND kind = 'transitions' "
+            "AND counts IS NOT NULL ORDER BY id",
+            (tour_id,),
+        )
+        return [bytes(r[0]) for r in rows]
+
+    def experiences(self, tour_id: int) -> list[tuple[int, bytes]]:
+        """``(taught image id, features)`` of every experience of the tour, in insertion order."""
+        rows = self._q(
+            "SELECT e.image_id, e.features FROM experiences e JOIN learned_changes c "
+            "ON c.id = e.change_id WHERE c.tour_id = ? ORDER BY e.id",
+            (tour_id,),
+        )
+        return [(int(i), bytes(b)) for i, b in rows]
 
     # --- teaching state -------------------------------------------------------------------
 

@@ -179,6 +179,18 @@ RULES: dict[str, dict[str, int | str]] = {
         "other_login": 404,
         "admin": 403,
     },
+    "household_missing_child": {  # a learned change of tour 1 that does not exist: 404 for
+        # every caller that reaches the tour (the answer names the change), as for the others
+        "none": 401,
+        "wrong": 401,
+        "revoked": 401,
+        "own_robot": 404,
+        "peer_robot": 404,
+        "other_robot": 404,
+        "login": 404,
+        "other_login": 404,
+        "admin": 403,
+    },
 }
 ROUTE_RULES: dict[tuple[str, str], str] = {
     ("GET", "/health"): "public",
@@ -198,6 +210,8 @@ ROUTE_RULES: dict[tuple[str, str], str] = {
     ("GET", "/tours"): "household_list",
     ("GET", "/tours/{tour_id}"): "household_object",
     ("GET", "/images/{image_id}"): "household_object",
+    ("GET", "/tours/{tour_id}/learned"): "household_object",
+    ("DELETE", "/tours/{tour_id}/learned/{change_id}"): "household_missing_child",
     ("GET", "/robots/{robot}/recordings"): "drive_robot",  # a robot's recordings: as driving it
     ("GET", "/robots/{robot}/recordings/{name}"): "drive_robot",
 }

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import serve_exits_2
 
 from server.cli import COMMANDS, build_parser, main
 
@@ -129,3 +130,18 @@ def test_a_dashboard_without_login_off_loopback_is_refused() -> None:
 
     with pytest.raises(ValueError, match=r"host 10\.0\.0\.2 is not a loopback address"):
         Settings(host="10.0.0.2", dashboard_login=False).dashboard_needs_login()
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (("--workers", "2", "--dashboard-port", "0"), "--workers runs no dashboard"),
+        (("--workers", "2", "--tls-cert", "c.pem", "--tls-key", "k.pem"), "does not serve HTTPS"),
+        (("--workers", "-1"), "workers"),
+    ],
+)
+def test_serve_workers_refuses_what_it_cannot_do(
+    tmp_path: Path, args: tuple[str, ...], says: str
+) -> None:
+    done = serve_exits_2(tmp_path / "db.sqlite", *args)
+    assert says in done.stderr

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, status
+from fastapi import APIRouter, Path, Response, status
 
 from server import schemas
 from server.api.deps import HouseholdDep, ServicesDep
@@ -34,3 +34,24 @@ def get_tour(
 ) -> schemas.TourGraphPublic:
     """The tour's graph: locations with their images, edges with counts and durations."""
     return services.tours.graph(tour_id, household)
+
+
+ChangeId = Annotated[int, Path(ge=1, le=schemas.MAX_ID, description="Learned change id.")]
+
+
+@router.get("/{tour_id}/learned", response_model=list[schemas.LearnedChange])
+def list_learned(
+    tour_id: PathId, services: ServicesDep, household: HouseholdDep
+) -> list[schemas.LearnedChange]:
+    """What the tour learned from repeat runs (docs/learning.md): each change, when, from which
+    run; remove one by deleting /tours/{tour_id}/learned/{change_id}."""
+    return services.learning.changes(tour_id, household)
+
+
+@router.delete("/{tour_id}/learned/{change_id}", status_code=status.HTTP_204_NO_CONTENT)
+def remove_learned(
+    tour_id: PathId, change_id: ChangeId, services: ServicesDep, household: HouseholdDep
+) -> Response:
+    """Undo one learned change: the tour behaves as if it had never been learned."""
+    services.learning.remove(tour_id, change_id, household)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

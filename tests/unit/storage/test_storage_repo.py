@@ -318,3 +318,73 @@ def test_old_audit_entries_and_expired_logins_are_forgotten(repo: Repo) -> None:
     assert repo.forget_before(audit_before=60.0, now=200.0) == (1, 1)
     assert [e.id for e in repo.audit()] == [2]
     assert repo.login("live") is not None and repo.login("old") is None
+
+
+def test_a_schema_4_database_upgrades_losing_nothing(tmp_path: Path) -> None:
+    """Schema 4 -> newest (5: learned changes): every row kept; the tour has learned nothing."""
+    import sqlite_utils
+
+    path = tmp_path / "four.sqlite"
+    conn = sqlite3.connect(path, isolation_level=None)
+    conn.execute("PRAGMA foreign_keys = ON")
+    assert migrate(sqlite_utils.Database(conn), upto=4) == 4
+    x = conn.execute
+    x("INSERT INTO households VALUES (2, 'flat', 'argon-hash', 1.0)")
+    x("INSERT INTO tours VALUES (7, 2, 'home', 3.0, x'0001', 3, 1)")
+    x("INSERT INTO locations VALUES (1, 7, 'hall', 4.0), (2, 7, 'kitchen', 5.0)")
+    x("INSERT INTO edges VALUES (1, 7, 1, 2, 6.0)")
+    x(
+        "INSERT INTO images (tour_id, edge_id, seq, timestamp, v, w, width, height, jpeg, "
+        "features, pose_x, pose_y, pose_theta, entropy) "
+        "VALUES (7, 1, 0, 0.0, 0.2, 0.0, 64, 48, ?, x'02', 1.0, 2.0, 0.5, 0.7)",
+        (make_jpeg(),),
+    )
+    tables = sqlite_utils.Database(conn).table_names()
+    before = _rows(conn, tuple(t for t in tables if t != "schema_migrations"))
+    conn.close()
+    repo = Repo(path)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 5
+        assert _rows(repo.db.conn, before) == before
+        assert repo.learned_changes(7) == [] and repo.experiences(7) == []
+        assert repo.transition_counts(7) == []
+        assert repo.integrity_ok()
+    finally:
+        repo.close()
+
+
+def test_learned_changes_are_listed_pruned_and_removed(repo: Repo) -> None:
+    tour = repo.add_tour("home").id
+    with repo.transaction():
+        a = repo.add_location(tour, "a")
+    img = add(repo, tour, location_id=a)
+    one = repo.add_learned_change(
+        tour, "experience", source="run 1", summary="s", now=1.0, experiences=[(img, b"x1")]
+    )
+    two = repo.add_learned_change(
+        tour,
+        "experience",
+        source="run 2",
+        summary="s",
+        now=2.0,
+        experiences=[(img, b"x2")],
+        max_per_image=1,
+    )
+    counts = repo.add_learned_change(
+        tour, "transitions", source="run 2", summary="c", now=2.0, counts=b"\0" * 24
+    )
+    rows = repo.learned_changes(tour)
+    assert [(r.id, r.kind, r.images) for r in rows] == [
+        (one, "experience", 0),  # its only image was pruned: the oldest goes first
+        (two, "experience", 1),
+        (counts, "transitions", 0),
+    ]
+    assert repo.experiences(tour) == [(img, b"x2")]
+    assert repo.transition_counts(tour) == [b"\0" * 24]
+    with pytest.raises(NotFound, match="no learned change"):
+        repo.remove_learned_change(tour, 999)
+    other = repo.add_tour("other").id
+    with pytest.raises(NotFound):
+        repo.remove_learned_change(other, two)
+    repo.remove_learned_change(tour, two)
+    assert repo.experiences(tour) == [] and len(repo.learned_changes(tour)) == 2

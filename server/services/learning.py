@@ -1,0 +1,190 @@
+"""Learning from repeat runs: collect what a task could teach, store it as undoable changes.
+
+A :class:`NavigationObserver`: while ``NavigationParams.learning.collect`` is on, every task
+keeps the frames its tracker localised on an edge (the last frame per taught image) and the
+tracker's own steps. When the task has arrived, ``POST /robots/{robot}/learn`` stores them as
+two learned changes of the tour (docs/learning.md): an *experience* (the frames, another
+appearance of the images they were localised at) and *transitions* (the run's expected motion
+counts, :mod:`server.belief.learning`). Every change is listed per tour and can be removed;
+the tour's runtime is rebuilt from what remains, so removing every change gives back exactly
+the taught behaviour.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from server import schemas
+from server.belief.learning import TransitionCounts, expected_motion_counts
+from server.belief.model import BeliefModel
+from server.errors import Conflict
+from server.navigation import NavigationParams
+from server.services.navigation import NavigationObserver
+from server.session import RobotSession, StepRecord
+from server.storage.repo import LearnedChangeRow, Repo
+from server.vision.features import ImageFeatures
+
+
+@dataclass
+class _Run:
+    """What one task collected."""
+
+    tour_id: int
+    task_id: int
+    started: float
+    model: BeliefModel
+    frames: dict[int, ImageFeatures] = field(default_factory=dict)  # taught image id -> frame
+    session: RobotSession | None = None
+    state: str = "underway"
+
+
+def change_public(row: LearnedChangeRow) -> schemas.LearnedChange:
+    return schemas.LearnedChange(
+        id=row.id,
+        tour=row.tour_id,
+        kind="transitions" if row.kind == "transitions" else "experience",
+        created_at=row.created_at,
+        source=row.source,
+        summary=row.summary,
+        images=row.images,
+    )
+
+
+class LearningService(NavigationObserver):
+    """Collects per robot (an observer of the navigation service) and stores on request."""
+
+    def __init__(
+        self,
+        repo: Repo,
+        params: NavigationParams,
+        on_change: Callable[[int], None],
+        *,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.repo = repo
+        self.params = params.learning
+        self.on_change = on_change
+        self.clock = clock
+        self._runs: dict[str, _Run] = {}
+        self._lock = threading.Lock()
+
+    # --- observer -------------------------------------------------------------------------
+
+    def task_started(
+        self, robot: str, session: RobotSession, tour_id: int, *, record: bool | None, resumed: bool
+    ) -> None:
+        if not self.params.collect:
+            return
+        task = session.task
+        run = _Run(
+            tour_id=tour_id,
+            task_id=0 if task is None else int(task.id),
+            started=self.clock(),
+            model=session.runtime.model,
+            session=session,
+        )
+        with self._lock:
+            self._runs[robot] = run
+
+    def stepped(
+        self,
+        robot: str,
+        session: RobotSession,
+        step: StepRecord,
+        result: schemas.NavigationFrameResult,
+        meta: schemas.FrameMeta,
+        wall: float,
+    ) -> None:
+        run = self._runs.get(robot)
+        s = step.summary
+        if run is None or run.state != "underway" or not s.localised:
+            return
+        graph = session.runtime.graph
+        state = s.localised_state
+        if state is None or state < graph.n_locations or session.runtime.model is not run.model:
+            return  # at a place, or the tour was rebuilt meanwhile
+        edge = state - graph.n_locations
+        k = int(s.best_image[edge])
+        if k < 0:
+            return
+        image_id = int(graph.image_ids[session.runtime.edge_image(edge, k)])
+        run.frames[image_id] = step.features
+
+    def task_ended(self, robot: str, task: schemas.TaskPublic) -> None:
+        run = self._runs.get(robot)
+        if run is not None:
+            run.state = task.state
+
+    # --- requests -------------------------------------------------------------------------
+
+    def learn(self, robot: str, household: int) -> list[schemas.LearnedChange]:
+        """Store what the robot's last task collected as learned changes of its tour (409 when
+        there is nothing: no arrived task, or collection off)."""
+        with self._lock:
+            run = self._runs.get(robot)
+        if run is None or run.state != "arrived":
+            raise Conflict(
+                f"robot {robot!r} has no arrived task to learn from (learning.collect is "
+                f"{'on' if self.params.collect else 'off'}; only a task that arrived teaches)"
+            )
+        self.repo.tour(run.tour_id, household)  # 404 for another household's tour
+        source = f"robot {robot}, task {run.task_id} started {_iso(run.started)}"
+        now = self.clock()
+        made: list[int] = []
+        if run.frames and self.params.experiences_per_image > 0:
+            made.append(
+                self.repo.add_learned_change(
+                    run.tour_id,
+                    "experience",
+                    source=source,
+                    summary=f"{len(run.frames)} images of the run as another appearance",
+                    now=now,
+                    experiences=[(i, f.to_bytes()) for i, f in sorted(run.frames.items())],
+                    max_per_image=self.params.experiences_per_image,
+                )
+            )
+        counts = self._counts(run)
+        if counts is not None:
+            made.append(
+                self.repo.add_learned_change(
+                    run.tour_id,
+                    "transitions",
+                    source=source,
+                    summary=f"{float(counts.steps.sum()):.0f} steps of driving along edges",
+                    now=now,
+                    counts=counts.to_bytes(),
+                )
+            )
+        with self._lock:
+            if self._runs.get(robot) is run:
+                del self._runs[robot]
+        if made:
+            self.on_change(run.tour_id)
+        rows = {r.id: r for r in self.repo.learned_changes(run.tour_id)}
+        return [change_public(rows[i]) for i in made if i in rows]
+
+    def _counts(self, run: _Run) -> TransitionCounts | None:
+        session = run.session
+        if self.params.run_steps == 0 or session is None:
+            return None
+        steps = session.tracker.run()
+        if len(steps) < 2 or session.tracker.model is not run.model:
+            return None
+        counts = expected_motion_counts(run.model, steps)
+        return counts if counts.steps.sum() > 0 else None
+
+    def changes(self, tour_id: int, household: int) -> list[schemas.LearnedChange]:
+        self.repo.tour(tour_id, household)
+        return [change_public(r) for r in self.repo.learned_changes(tour_id)]
+
+    def remove(self, tour_id: int, change_id: int, household: int) -> None:
+        self.repo.tour(tour_id, household)
+        self.repo.remove_learned_change(tour_id, change_id)
+        self.on_change(tour_id)
+
+
+def _iso(t: float) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
