@@ -28,10 +28,13 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 from server.bench.profile import STAGES, Sampler
+
+if TYPE_CHECKING:
+    from server.process import ServerProcess
 
 PAGE_KB = os.sysconf("SC_PAGE_SIZE") / 1024 if hasattr(os, "sysconf") else 4.0
 
@@ -212,6 +215,44 @@ def load_frames(data: Path) -> tuple[Path, list[bytes]]:
     return ref, [p.read_bytes() for p in query]
 
 
+def drive(
+    server: ServerProcess,
+    tokens: dict[str, str],
+    frames: list[bytes],
+    *,
+    rate_hz: float,
+    goal: str,
+    until: float,
+    lockstep: bool,
+) -> tuple[dict[str, RobotLog], list[threading.Thread]]:
+    """Start one client thread per robot of ``tokens`` (robot i of R ``i / (rate_hz R)`` s
+    behind robot 0 and, unless ``lockstep``, ``i / R`` of the way along the frames), each
+    sending frames to ``server`` until ``until``; their logs and threads."""
+    robots = len(tokens)
+    logs = {name: RobotLog() for name in tokens}
+    threads = [
+        threading.Thread(
+            target=robot_loop,
+            args=(server.url, token, name),
+            kwargs={
+                "frames": frames,
+                "rate_hz": rate_hz,
+                "phase_s": i / (rate_hz * robots),
+                "first_frame": 0 if lockstep else i * len(frames) // robots,
+                "goal": goal,
+                "until": until,
+                "log": logs[name],
+            },
+            name=name,
+            daemon=True,
+        )
+        for i, (name, token) in enumerate(tokens.items())
+    ]
+    for t in threads:
+        t.start()
+    return logs, threads
+
+
 def one_run(
     robots: int,
     *,
@@ -253,32 +294,14 @@ def one_run(
             with TeachRepeatClient(server.url, token) as robot:
                 robot.goto(name, goal)
         rss_idle = rss_mb(pid)
-        logs = {name: RobotLog() for name in tokens}
         start = time.monotonic()
         measure_from = start + warmup_s
         until = measure_from + seconds
         sampler = RssSampler(pid, rss_every_s)
         sampler.start()
-        threads = [
-            threading.Thread(
-                target=robot_loop,
-                args=(server.url, token, name),
-                kwargs={
-                    "frames": frames,
-                    "rate_hz": rate_hz,
-                    "phase_s": i / (rate_hz * robots),
-                    "first_frame": 0 if lockstep else i * len(frames) // robots,
-                    "goal": goal,
-                    "until": until,
-                    "log": logs[name],
-                },
-                name=name,
-                daemon=True,
-            )
-            for i, (name, token) in enumerate(tokens.items())
-        ]
-        for t in threads:
-            t.start()
+        logs, threads = drive(
+            server, tokens, frames, rate_hz=rate_hz, goal=goal, until=until, lockstep=lockstep
+        )
         time.sleep(max(0.0, measure_from - time.monotonic()))
         cpu0, wall0 = cpu_seconds(pid), time.monotonic()
         spy = None

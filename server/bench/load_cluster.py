@@ -23,19 +23,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 from server.bench.load import (
-    RobotLog,
     RssSampler,
     cpu_seconds,
+    drive,
     load_frames,
     meets,
-    robot_loop,
 )
 from server.process import ADMIN, ServerProcess
 
@@ -106,41 +104,6 @@ def _teach(server: ServerProcess, ref: Path, robots: int, goal: str) -> dict[str
     return tokens
 
 
-def _drive(
-    server: ServerProcess,
-    tokens: dict[str, str],
-    frames: list[bytes],
-    *,
-    rate_hz: float,
-    goal: str,
-    until: float,
-    lockstep: bool,
-) -> tuple[dict[str, RobotLog], list[threading.Thread]]:
-    robots = len(tokens)
-    logs = {name: RobotLog() for name in tokens}
-    threads = [
-        threading.Thread(
-            target=robot_loop,
-            args=(server.url, token, name),
-            kwargs={
-                "frames": frames,
-                "rate_hz": rate_hz,
-                "phase_s": i / (rate_hz * robots),
-                "first_frame": 0 if lockstep else i * len(frames) // robots,
-                "goal": goal,
-                "until": until,
-                "log": logs[name],
-            },
-            name=name,
-            daemon=True,
-        )
-        for i, (name, token) in enumerate(tokens.items())
-    ]
-    for t in threads:
-        t.start()
-    return logs, threads
-
-
 def cluster_run(
     robots: int,
     processes: int,
@@ -171,7 +134,7 @@ def cluster_run(
             sampler.start()
         measure_from = time.monotonic() + warmup_s
         until = measure_from + seconds
-        logs, threads = _drive(
+        logs, threads = drive(
             server, tokens, frames, rate_hz=rate_hz, goal=goal, until=until, lockstep=lockstep
         )
         time.sleep(max(0.0, measure_from - time.monotonic()))
