@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import threading
 import time
 from dataclasses import dataclass, field
@@ -75,6 +76,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "CPU goes per stage of a frame (decode, features, retrieval, belief, policy, homing, "
         "motion, encode, persist, http; server/bench/profile.py); py-spy's own CPU is on the "
         "same cores",
+    )
+    parser.add_argument(
+        "--profile-raw",
+        default=None,
+        help="with --profile: also keep py-spy's raw stacks (one 'frame;frame;... count' line "
+        "per distinct stack, loadable by speedscope or flamegraph.pl) in this file",
     )
     parser.add_argument(
         "--server-env",
@@ -266,6 +273,7 @@ def one_run(
     server_env: dict[str, str] | None = None,
     lockstep: bool = False,
     profile: bool = False,
+    profile_raw: str | None = None,
 ) -> dict[str, Any]:
     """Start a fresh server, teach, drive ``robots`` clients; the figures of this run.
 
@@ -313,6 +321,8 @@ def one_run(
         cpu1, wall1 = cpu_seconds(pid), time.monotonic()
         sampler.stop()
         stages = None if spy is None else spy.finish()
+        if spy is not None and profile_raw:
+            shutil.copyfile(spy.out, profile_raw)
         alive = server.proc.poll() is None
     measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
     errors = [e for log in logs.values() for e in log.errors]
@@ -376,6 +386,9 @@ def run(args: argparse.Namespace) -> int:
             print("--profile samples one server process: run it without --processes")
             return 2
         return load_cluster.run(args)
+    if args.profile_raw and not args.profile:
+        print("--profile-raw keeps the stacks of --profile: pass both")
+        return 2
     counts = [int(x) for x in args.sweep.split(",") if x.strip()] if args.sweep else [args.robots]
     if not counts or min(counts) < 1:
         print("robot counts must be positive integers, e.g. --sweep 1,5,10,20")
@@ -407,6 +420,7 @@ def run(args: argparse.Namespace) -> int:
             server_env=server_env,
             lockstep=args.lockstep,
             profile=args.profile,
+            profile_raw=args.profile_raw,
         )
         result["meets_target"] = meets(result, args.p99_ms)
         runs.append(result)

@@ -126,3 +126,18 @@ def test_py_spy_samples_a_real_process_into_its_stage(tmp_path: Path) -> None:
         proc.wait()
     assert profile.total >= 20
     assert profile.samples["features"] / profile.total > 0.9
+
+
+def test_bench_load_refuses_raw_stacks_without_the_profile(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import argparse
+
+    from server.bench import load
+
+    parser = argparse.ArgumentParser()
+    load.add_arguments(parser)
+    args = parser.parse_args(["--profile-raw", str(tmp_path / "stacks.txt")])
+    assert load.run(args) == 2
+    assert "pass both" in capsys.readouterr().out
+    assert not (tmp_path / "stacks.txt").exists()
