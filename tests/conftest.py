@@ -13,11 +13,15 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from pydantic import SecretStr
+
+if TYPE_CHECKING:
+    from server.storage.pgserver import ThrowawayPostgres
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
@@ -109,3 +113,37 @@ def serve_exits_2(
     assert "Traceback" not in done.stderr, done.stderr
     assert ADMIN not in done.stderr + done.stdout
     return done
+
+
+# --- PostgreSQL (docs/scale.md) -------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def postgres_server() -> Iterator[ThrowawayPostgres]:
+    """One throw-away PostgreSQL server for the whole session (server.storage.pgserver); the
+    tests that need it skip, saying why, where none can be started."""
+    from server.storage.pgserver import PostgresUnavailable, ThrowawayPostgres
+
+    try:
+        import psycopg  # noqa: F401
+
+        server = ThrowawayPostgres().start()
+    except (PostgresUnavailable, ImportError) as exc:
+        pytest.skip(f"PostgreSQL tests skipped: no PostgreSQL server could be started: {exc}")
+    yield server
+    server.stop()
+
+
+@pytest.fixture()
+def postgres_url(postgres_server: ThrowawayPostgres) -> str:
+    """The URL of a new empty database on the session's PostgreSQL server."""
+    return postgres_server.create_database()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> Path | str:
+    """Where a storage test's database lives: a new SQLite file, then a new PostgreSQL
+    database (the same test runs on both)."""
+    if request.param == "sqlite":
+        return tmp_path / "t.sqlite"
+    return str(request.getfixturevalue("postgres_url"))
