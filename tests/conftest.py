@@ -21,6 +21,7 @@ from fastapi.testclient import TestClient
 from pydantic import SecretStr
 
 if TYPE_CHECKING:
+    from server.process import ServerProcess
     from server.storage.pgserver import ThrowawayPostgres
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -147,3 +148,16 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> Path | str:
     if request.param == "sqlite":
         return tmp_path / "t.sqlite"
     return str(request.getfixturevalue("postgres_url"))
+
+
+def assert_stored_in(server: ServerProcess, tour: int, counts: tuple[int, int]) -> None:
+    """The tour's places and paths (``counts``) are in the database the real server was given
+    (and, on PostgreSQL, no SQLite file was made instead)."""
+    from server.storage.repo import Repo
+
+    repo = Repo(server.database())
+    try:
+        assert repo.tour_counts(tour) == counts
+    finally:
+        repo.close()
+    assert server.db.exists() == (server.database_url is None)

@@ -176,7 +176,7 @@ def households(db: Any) -> None:
             CREATE TABLE robots_new (
                 name TEXT PRIMARY KEY,
                 household_id INTEGER NOT NULL REFERENCES households(id),
-                token_hash TEXT UNIQUE,            -- sha256 of the bearer token, hex; NULL = revoked
+                token_hash TEXT UNIQUE,        -- sha256 of the bearer token, hex; NULL = revoked
                 token_issued_at REAL,
                 created_at REAL NOT NULL
             )"""

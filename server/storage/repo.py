@@ -196,8 +196,9 @@ class Repo:
         """Reads inside see one consistent state of the file and write nothing.
 
         A deferred transaction (PostgreSQL: repeatable read, read only): unlike
-        :meth:`transaction` it takes no write lock, so it keeps working on a read-only file. Inside a transaction it joins it; a transaction inside a
-        snapshot is a programming error (``RuntimeError``).
+        :meth:`transaction` it takes no write lock, so it keeps working on a read-only file.
+        Inside a transaction it joins it; a transaction inside a snapshot is a programming
+        error (``RuntimeError``).
         """
         with self._lock:
             outer = self._depth == 0
@@ -898,4 +899,3 @@ def _owned_by(household_id: int | None, prefix: str = "") -> tuple[str, tuple[ob
     if household_id is None:
         return "", ()
     return f" WHERE {prefix}household_id = ?", (household_id,)
-

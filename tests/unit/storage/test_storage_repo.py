@@ -57,9 +57,7 @@ def test_a_fresh_database_is_migrated(repo: Repo) -> None:
     )
 
 
-def test_both_databases_get_the_same_tables_and_columns(
-    tmp_path: Path, postgres_url: str
-) -> None:
+def test_both_databases_get_the_same_tables_and_columns(tmp_path: Path, postgres_url: str) -> None:
     """Migrations from empty to the newest give PostgreSQL what they give SQLite."""
     schemas = []
     for target in (tmp_path / "t.sqlite", postgres_url):
