@@ -260,7 +260,11 @@ class PostgresDatabase:
 
     def begin_write(self) -> None:
         self.execute("BEGIN")
-        self.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK,))
+        try:
+            self.execute("SELECT pg_advisory_xact_lock(?)", (WRITE_LOCK,))
+        except BaseException:  # waited longer than lock_timeout: no transaction is left open
+            self.rollback()
+            raise
 
     def begin_read(self) -> None:
         self.execute("BEGIN ISOLATION LEVEL REPEATABLE READ, READ ONLY")

@@ -456,3 +456,45 @@ def test_learned_changes_are_listed_pruned_and_removed(repo: Repo) -> None:
         repo.remove_learned_change(other, two)
     repo.remove_learned_change(tour, two)
     assert repo.experiences(tour) == [] and len(repo.learned_changes(tour)) == 2
+
+
+def test_a_lost_postgresql_connection_is_opened_again(postgres_url: str) -> None:
+    """The database server ends the connection (a restart): that request is answered
+    Unavailable, the next one works on a new connection."""
+    import psycopg
+
+    repo = Repo(postgres_url)
+    try:
+        repo.add_tour("before")
+        pid = repo.db.execute("SELECT pg_backend_pid()").fetchone()[0]
+        with psycopg.connect(postgres_url, autocommit=True) as other:
+            other.execute("SELECT pg_terminate_backend(%s)", (pid,))
+        with pytest.raises(Unavailable, match="lost the connection"):
+            repo.tours()
+        assert [t.name for t, *_ in repo.tours()] == ["before"]
+        with pytest.raises(psycopg.DataError, match="0x00"), repo.transaction():  # scale.md
+            repo.add_tour("nul\x00")
+    finally:
+        repo.close()
+
+
+def test_a_write_waits_for_another_processs_write_then_is_told_busy(store: Path | str) -> None:
+    """One writer at a time over every connection: while another holds the write lock past
+    the timeout, a write is answered Unavailable and leaves no transaction open."""
+    holder, repo = Repo(store), Repo(store)
+    try:
+        if repo.db.dialect == "sqlite":
+            repo.db.execute("PRAGMA busy_timeout = 200")
+        else:
+            repo.db.execute("SET lock_timeout = 200")
+        with holder.transaction():
+            holder.add_tour("held")
+            with pytest.raises(Unavailable, match="busy"), repo.transaction():
+                repo.add_tour("waited")
+            assert not repo.db.in_transaction
+        with repo.transaction():
+            repo.add_tour("after")
+        assert sorted(t.name for t, *_ in repo.tours()) == ["after", "held"]
+    finally:
+        holder.close()
+        repo.close()
