@@ -2,9 +2,12 @@
 # Debian packages the project needs: OSMesa for the simulator's CPU rendering, gimp-data for the
 # photographic textures of the simulated home, Chromium for the dashboard's browser test.
 # HAProxy: the load balancer in front of several server processes (`teachrepeat cluster`).
+# PostgreSQL: its server programs (/usr/lib/postgresql/*/bin) run a throw-away server for the
+# PostgreSQL tests and benchmarks (server/storage/pgserver.py); the cluster the package may
+# start on port 5432 is not used.
 # Installs only what is missing; needs root (or sudo) to install.
 set -euo pipefail
-packages=(libosmesa6 gimp-data chromium haproxy)
+packages=(libosmesa6 gimp-data chromium haproxy postgresql)
 missing=()
 for p in "${packages[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -136,7 +136,7 @@ def create_app(
         min_side=settings.min_image_side,
     )
     services = Services.build(
-        Repo(settings.db),
+        Repo(settings.database()),
         admin_token=settings.admin_token.get_secret_value(),
         limits=limits,
         navigation=navigation,

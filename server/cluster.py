@@ -36,6 +36,7 @@ from pathlib import Path
 from types import FrameType
 
 from server.config import Settings, is_loopback
+from server.errors import Unavailable
 
 HAPROXY_TEMPLATE = Path(__file__).with_name("deploy") / "haproxy.cfg"
 """The shipped HAProxy configuration, with ``${bind}``, ``${servers}`` and ``${retries}``."""
@@ -176,6 +177,8 @@ class Cluster:
         env = {k: v for k, v in os.environ.items() if k != "TEACHREPEAT_WORKERS"}
         env["TEACHREPEAT_ADMIN_TOKEN"] = token.get_secret_value()
         env["TEACHREPEAT_WORKER_NAME"] = worker.name
+        if self.settings.database_url is not None:  # never on a command line: ps shows those
+            env["TEACHREPEAT_DATABASE_URL"] = self.settings.database_url.get_secret_value()
         return env
 
     def _spawn(self, worker: Worker) -> None:
@@ -194,7 +197,8 @@ class Cluster:
         one does not come up (whatever started is stopped by :meth:`stop`)."""
         from server.storage.repo import Repo
 
-        Repo(self.settings.db).close()  # migrate once, before N processes open the file
+        # migrate once, before N processes open the database
+        Repo(self.settings.database()).close()
         self.workers = [Worker(a) for a in self.addresses]
         for worker in self.workers:
             self._spawn(worker)
@@ -318,13 +322,13 @@ def run_cluster(settings: Settings) -> int:
     try:
         try:
             cluster.start()
-        except (RuntimeError, OSError) as exc:
+        except (RuntimeError, OSError, Unavailable) as exc:
             print(f"teachrepeat serve: the cluster did not start: {exc}", file=sys.stderr)
             return 1
         if not is_loopback(settings.host):
             print(f"HAProxy listens on {settings.host}: robots on the network can reach it")
         print(f"teachrepeat API  {cluster.url()}", flush=True)
-        print(f"database         {settings.db}", flush=True)
+        print(f"database         {settings.database_shown()}", flush=True)
         for w in cluster.workers:
             pid = w.proc.pid if w.proc is not None else "?"
             print(f"worker {w.address.name}        http://127.0.0.1:{w.address.port} (pid {pid})")

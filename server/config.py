@@ -30,7 +30,17 @@ class Settings(BaseSettings):
 
     db: Path = Field(
         default=DEFAULT_DATA_DIR / "teachrepeat.sqlite",
-        description="SQLite database file; created with its folder when missing.",
+        description="SQLite database file; created with its folder when missing. With "
+        "`database_url` set to PostgreSQL, its folder still holds the admin token file and "
+        "the recordings.",
+    )
+    database_url: SecretStr | None = Field(
+        default=None,
+        description="The database as a URL: `postgresql://USER:PASSWORD@HOST:PORT/NAME` for "
+        "a PostgreSQL server shared by several server processes or machines (docs/scale.md), "
+        "or `sqlite:///PATH` (the same as `db`). None = the SQLite file `db`. Its password is "
+        "never printed or logged; prefer the environment (TEACHREPEAT_DATABASE_URL) to the "
+        "command line, which other users of the machine can read.",
     )
     admin_token: SecretStr | None = Field(
         default=None,
@@ -160,6 +170,17 @@ class Settings(BaseSettings):
         description="Failed authentications from one address before its requests wait (429).",
     )
 
+    def database(self) -> Path | str:
+        """What the server opens (:class:`server.storage.repo.Repo`): the PostgreSQL URL, or
+        the SQLite file ``db``."""
+        return self.database_url.get_secret_value() if self.database_url is not None else self.db
+
+    def database_shown(self) -> str:
+        """The database as it may be printed: a URL's password masked."""
+        from server.storage.database import masked
+
+        return masked(self.database())
+
     def recordings_dir(self) -> Path:
         """Where recordings go: ``record_dir``, or ``recordings`` beside the database."""
         return self.record_dir if self.record_dir is not None else self.db.parent / "recordings"
@@ -186,6 +207,26 @@ class Settings(BaseSettings):
                 "127.0.0.1, or turn the dashboard off with --dashboard-port -1"
             )
         return not loopback if self.dashboard_login is None else self.dashboard_login
+
+    @model_validator(mode="after")
+    def _database(self) -> Settings:
+        """A ``sqlite:///`` URL is the file ``db``; any other URL must be PostgreSQL's."""
+        from server.storage.database import POSTGRES_SCHEMES, SQLITE_SCHEME, masked, sqlite_path
+
+        if self.database_url is None:
+            return self
+        url = self.database_url.get_secret_value()
+        if url.startswith(SQLITE_SCHEME):
+            self.db = Path(sqlite_path(url))
+            self.database_url = None
+        elif not url.startswith(POSTGRES_SCHEMES):
+            raise ValueError(
+                f"database_url {masked(url.split('://', 1)[0] + '://...')} is neither "
+                "postgresql://USER:PASSWORD@HOST:PORT/NAME nor sqlite:///PATH; fix "
+                "--database-url (or TEACHREPEAT_DATABASE_URL), or leave it out for the SQLite "
+                "file --db"
+            )
+        return self
 
     @model_validator(mode="after")
     def _tls_pair(self) -> Settings:

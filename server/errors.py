@@ -68,3 +68,10 @@ class TooMany(DomainError):
     def __init__(self, message: str, retry_after_s: float) -> None:
         super().__init__(message)
         self.retry_after_s = retry_after_s
+
+
+class IntegrityViolation(Exception):
+    """The database refused a write that breaks one of its constraints (a unique name taken,
+    a reference to nothing). Raised by storage on SQLite and PostgreSQL alike; a service that
+    expects one (a concurrent create) turns it into a :class:`Conflict`. Not a
+    :class:`DomainError`: one nobody expected is a server error (500), as before."""

@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from server.storage.repo import Repo
 
     settings = Settings(**({"db": args.db} if args.db else {}))
-    repo = Repo(settings.db)
+    repo = Repo(settings.database())  # TEACHREPEAT_DATABASE_URL: a PostgreSQL server
     households = HouseholdService(repo, Identities(repo))
     try:
         if args.action == "list":

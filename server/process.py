@@ -34,6 +34,13 @@ class ServerProcess:
     admin_token: str = ADMIN
     ca_cert: Path | None = None
     """The certificate the server presents, when it serves over HTTPS."""
+    database_url: str | None = None
+    """The PostgreSQL database it serves from (``db``'s folder then holds only the admin
+    token file and recordings)."""
+
+    def database(self) -> Path | str:
+        """What :class:`server.storage.repo.Repo` opens to read what the server stored."""
+        return self.database_url if self.database_url is not None else self.db
 
     def register_robot(self, name: str) -> str:
         """Register robot ``name`` with the admin token; its bearer token."""
@@ -64,8 +71,12 @@ def start_server(
     extra_env: dict[str, str] | None = None,
     tls: tuple[Path, Path] | None = None,
     workers: int = 0,
+    database_url: str | None = None,
 ) -> ServerProcess:
     """Run ``teachrepeat serve --db DB --port 0`` and wait until it answers ``/health``.
+
+    ``database_url``: serve from this PostgreSQL database instead of the file ``db``
+    (``TEACHREPEAT_DATABASE_URL``, never on the command line).
 
     ``workers``: that many server processes behind HAProxy (``--workers``, docs/scale.md);
     ``url`` is then HAProxy's address and ``proc`` the launcher.
@@ -75,6 +86,9 @@ def start_server(
     then asked trusting that certificate only."""
     env = {**os.environ, "TEACHREPEAT_ADMIN_TOKEN": admin_token, **(extra_env or {})}
     env.pop("TEACHREPEAT_DB", None)
+    env.pop("TEACHREPEAT_DATABASE_URL", None)
+    if database_url is not None:
+        env["TEACHREPEAT_DATABASE_URL"] = database_url
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -96,7 +110,9 @@ def start_server(
         env=env,
     )
     try:
-        return _wait_until_up(proc, db, admin_token, dashboard, tls, 90.0 if workers else 30.0)
+        server = _wait_until_up(proc, db, admin_token, dashboard, tls, 90.0 if workers else 30.0)
+        server.database_url = database_url
+        return server
     except BaseException:
         # not up (or the caller was interrupted, e.g. SIGTERM or Ctrl-C while the server was
         # still importing): nobody else holds the process, so stop it here
@@ -152,12 +168,19 @@ def _wait_until_up(
 
 @contextmanager
 def scratch_server(
-    name: str = "scratch.sqlite", *, extra_env: dict[str, str] | None = None, workers: int = 0
+    name: str = "scratch.sqlite",
+    *,
+    extra_env: dict[str, str] | None = None,
+    workers: int = 0,
+    database_url: str | None = None,
 ) -> Iterator[ServerProcess]:
     """A real server on a fresh database in a temporary folder, stopped and removed on exit
-    (for benchmarks that measure a clean server); ``workers`` as in :func:`start_server`."""
+    (for benchmarks that measure a clean server); ``workers`` and ``database_url`` (an empty
+    PostgreSQL database instead of the file) as in :func:`start_server`."""
     with tempfile.TemporaryDirectory() as tmp:
-        server = start_server(Path(tmp) / name, extra_env=extra_env, workers=workers)
+        server = start_server(
+            Path(tmp) / name, extra_env=extra_env, workers=workers, database_url=database_url
+        )
         try:
             yield server
         finally:

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 from pydantic import SecretStr
 
 from server.config import Settings
+from server.errors import Unavailable
 from server.security import new_token
 from server.tls import SslOptions, ssl_options
 
@@ -34,6 +35,13 @@ if TYPE_CHECKING:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--db", type=Path, help="SQLite file (default: data/teachrepeat.sqlite)")
+    parser.add_argument(
+        "--database-url",
+        metavar="URL",
+        help="postgresql://USER:PASSWORD@HOST:PORT/NAME: a PostgreSQL server shared by several "
+        "processes or machines instead of the SQLite file --db (docs/scale.md). Other users "
+        "can read a command line: prefer TEACHREPEAT_DATABASE_URL for the password",
+    )
     parser.add_argument("--host", help="interface to bind (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="API port (default 8000; 0 = any free port)")
     parser.add_argument(
@@ -95,7 +103,7 @@ def token_file(settings: Settings) -> Path:
 def settings_from(args: argparse.Namespace) -> Settings:
     overrides = {
         k: getattr(args, k)
-        for k in ("db", "host", "port", "tls_cert", "tls_key", "workers")
+        for k in ("db", "database_url", "host", "port", "tls_cert", "tls_key", "workers")
         if getattr(args, k, None) is not None
     }
     dashboard_port = getattr(args, "dashboard_port", None)
@@ -206,6 +214,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # a setting that does not parse or does not exist, a bad TLS file
         print(f"teachrepeat serve: {exc}", file=sys.stderr, flush=True)
         return 2
+    except Unavailable as exc:  # the PostgreSQL server cannot be reached (URL masked)
+        print(f"teachrepeat serve: {exc.message}", file=sys.stderr, flush=True)
+        return 2
     services: Services = app.state.services
     if login and not services.repo.any_login():
         services.close()
@@ -216,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     base = f"{'https' if tls else 'http'}://{settings.host}:{port}"
     print(f"teachrepeat API  {base}", flush=True)
     print(f"API docs         {base}/docs", flush=True)
-    print(f"database         {settings.db}", flush=True)
+    print(f"database         {settings.database_shown()}", flush=True)
     if settings.record:
         print(f"recording to     {settings.recordings_dir()}", flush=True)
     if token_file(settings).exists():

@@ -13,11 +13,16 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from pydantic import SecretStr
+
+if TYPE_CHECKING:
+    from server.process import ServerProcess
+    from server.storage.pgserver import ThrowawayPostgres
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
@@ -109,3 +114,50 @@ def serve_exits_2(
     assert "Traceback" not in done.stderr, done.stderr
     assert ADMIN not in done.stderr + done.stdout
     return done
+
+
+# --- PostgreSQL (docs/scale.md) -------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def postgres_server() -> Iterator[ThrowawayPostgres]:
+    """One throw-away PostgreSQL server for the whole session (server.storage.pgserver); the
+    tests that need it skip, saying why, where none can be started."""
+    from server.storage.pgserver import PostgresUnavailable, ThrowawayPostgres
+
+    try:
+        import psycopg  # noqa: F401
+
+        server = ThrowawayPostgres().start()
+    except (PostgresUnavailable, ImportError) as exc:
+        pytest.skip(f"PostgreSQL tests skipped: no PostgreSQL server could be started: {exc}")
+    yield server
+    server.stop()
+
+
+@pytest.fixture()
+def postgres_url(postgres_server: ThrowawayPostgres) -> str:
+    """The URL of a new empty database on the session's PostgreSQL server."""
+    return postgres_server.create_database()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> Path | str:
+    """Where a storage test's database lives: a new SQLite file, then a new PostgreSQL
+    database (the same test runs on both)."""
+    if request.param == "sqlite":
+        return tmp_path / "t.sqlite"
+    return str(request.getfixturevalue("postgres_url"))
+
+
+def assert_stored_in(server: ServerProcess, tour: int, counts: tuple[int, int]) -> None:
+    """The tour's places and paths (``counts``) are in the database the real server was given
+    (and, on PostgreSQL, no SQLite file was made instead)."""
+    from server.storage.repo import Repo
+
+    repo = Repo(server.database())
+    try:
+        assert repo.tour_counts(tour) == counts
+    finally:
+        repo.close()
+    assert server.db.exists() == (server.database_url is None)

@@ -27,12 +27,15 @@ import os
 import shutil
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from server.bench.common import corridor_marks, default_data_dir, stats, write_json
 from server.bench.profile import STAGES, Sampler
+from server.storage.pgserver import PostgresUnavailable
 
 if TYPE_CHECKING:
     from server.process import ServerProcess
@@ -98,8 +101,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "docs/scale.md) and measure through HAProxy, with each process's CPU and RSS; "
         "1,2 alternates both per robot count. Default: one process, no HAProxy",
     )
+    parser.add_argument(
+        "--postgres",
+        action="store_true",
+        help="store on PostgreSQL instead of a SQLite file: a throw-away server (durable "
+        "settings, fsync on) started for the benchmark on this machine's cores, a new database "
+        "per run (docs/scale.md; needs the Debian package postgresql)",
+    )
     parser.add_argument("--data", type=Path, default=None, help="image data folder")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+
+
+@contextmanager
+def databases(postgres: bool) -> Iterator[Callable[[], str | None]]:
+    """What each run stores into: ``None`` (a new SQLite file), or with ``postgres`` the URL of
+    a new database on a throw-away durable PostgreSQL server kept for the whole benchmark.
+    Raises :class:`server.storage.pgserver.PostgresUnavailable` when none can be started."""
+    if not postgres:
+        yield lambda: None
+        return
+    from server.storage.pgserver import ThrowawayPostgres
+
+    with ThrowawayPostgres(durable=True) as server:
+        yield lambda: server.create_database("load")
 
 
 # --- the server process, seen from outside -------------------------------------------------
@@ -274,17 +298,19 @@ def one_run(
     lockstep: bool = False,
     profile: bool = False,
     profile_raw: str | None = None,
+    database_url: str | None = None,
 ) -> dict[str, Any]:
     """Start a fresh server, teach, drive ``robots`` clients; the figures of this run.
 
     Robot ``i`` sends its frames ``i / (rate_hz robots)`` s after robot 0 and, unless
     ``lockstep``, starts ``i / robots`` of the way along the frames: robots of a fleet are
-    not all at the same place of their route at the same moment."""
+    not all at the same place of their route at the same moment. ``database_url``: a new
+    PostgreSQL database to store into instead of a new SQLite file."""
     from robot_client.client import TeachRepeatClient
     from robot_client.teach import teach_folder
     from server.process import ADMIN, scratch_server
 
-    with scratch_server("load.sqlite", extra_env=server_env) as server:
+    with scratch_server("load.sqlite", extra_env=server_env, database_url=database_url) as server:
         pid = server.proc.pid
         with TeachRepeatClient(server.url, ADMIN) as admin:
             teacher = admin.register_robot("teacher").token
@@ -378,6 +404,29 @@ def meets(result: dict[str, Any], p99_ms: float) -> bool:
     )
 
 
+def print_run(result: dict[str, Any]) -> None:
+    """One run's line (and its error samples and stages) as ``bench load`` prints it."""
+    robots = result["robots"]
+    lat = result["latency_ms"]
+    print(
+        f"R={robots:3d}: {result['fps']:6.1f} frames/s of {result['offered_fps']:.0f} "
+        "offered, "
+        f"latency p50 {lat['p50']:.1f} / p95 {lat['p95']:.1f} / p99 {lat['p99']:.1f} "
+        "ms, "
+        f"{result['errors']} errors, server CPU {result['server_cpu_pct']:.0f} % "
+        f"({result['cpu_ms_per_frame']:.2f} ms per frame), "
+        f"RSS {result['rss_mb']['first_after_warmup']:.0f} -> "
+        f"{result['rss_mb']['last']:.0f} "
+        f"MiB (x{result['rss_growth']:.3f})"
+        + ("" if result["meets_target"] else "  [misses target]"),
+        flush=True,
+    )
+    for sample in result["error_samples"]:
+        print(f"    error: {sample}")
+    if result["stages"] is not None:
+        print(stage_lines(result["stages"]), flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.processes is not None:  # through HAProxy, P processes (docs/scale.md)
         from server.bench import load_cluster
@@ -405,40 +454,33 @@ def run(args: argparse.Namespace) -> int:
         f"clients share the server's {os.cpu_count()} cores; "
         + ("robots in lockstep" if args.lockstep else "robots start spread along the frames")
         + (f"; server environment {server_env}" if server_env else "")
+        + ("; stored on PostgreSQL (throw-away server, same cores)" if args.postgres else "")
     )
     runs = []
-    for robots in counts:
-        result = one_run(
-            robots,
-            ref=ref,
-            frames=frames,
-            seconds=args.seconds,
-            warmup_s=args.warmup,
-            rate_hz=args.rate,
-            goal=args.goal or corridor_marks()[max(corridor_marks())],
-            rss_every_s=args.rss_every,
-            server_env=server_env,
-            lockstep=args.lockstep,
-            profile=args.profile,
-            profile_raw=args.profile_raw,
-        )
-        result["meets_target"] = meets(result, args.p99_ms)
-        runs.append(result)
-        lat = result["latency_ms"]
-        print(
-            f"R={robots:3d}: {result['fps']:6.1f} frames/s of {result['offered_fps']:.0f} offered, "
-            f"latency p50 {lat['p50']:.1f} / p95 {lat['p95']:.1f} / p99 {lat['p99']:.1f} ms, "
-            f"{result['errors']} errors, server CPU {result['server_cpu_pct']:.0f} % "
-            f"({result['cpu_ms_per_frame']:.2f} ms per frame), "
-            f"RSS {result['rss_mb']['first_after_warmup']:.0f} -> {result['rss_mb']['last']:.0f} "
-            f"MiB (x{result['rss_growth']:.3f})"
-            + ("" if result["meets_target"] else "  [misses target]"),
-            flush=True,
-        )
-        for sample in result["error_samples"]:
-            print(f"    error: {sample}")
-        if result["stages"] is not None:
-            print(stage_lines(result["stages"]), flush=True)
+    try:
+        with databases(args.postgres) as fresh:
+            for robots in counts:
+                result = one_run(
+                    robots,
+                    ref=ref,
+                    frames=frames,
+                    seconds=args.seconds,
+                    warmup_s=args.warmup,
+                    rate_hz=args.rate,
+                    goal=args.goal or corridor_marks()[max(corridor_marks())],
+                    rss_every_s=args.rss_every,
+                    server_env=server_env,
+                    lockstep=args.lockstep,
+                    profile=args.profile,
+                    profile_raw=args.profile_raw,
+                    database_url=fresh(),
+                )
+                result["meets_target"] = meets(result, args.p99_ms)
+                runs.append(result)
+                print_run(result)
+    except PostgresUnavailable as exc:
+        print(f"--postgres: {exc}")
+        return 2
     ok = [r["robots"] for r in runs if r["meets_target"]]
     largest = max(ok) if ok else None
     if len(runs) > 1:
@@ -456,6 +498,7 @@ def run(args: argparse.Namespace) -> int:
             "runs": runs,
             "largest_robots_meeting_target": largest,
             "server_env": server_env,
+            "store": "postgresql" if args.postgres else "sqlite",
             "target": {"p99_ms": args.p99_ms, "errors": 0, "rss_growth": 1.05},
             "note": "clients run as threads on the same machine and cores as the server",
         },

@@ -31,11 +31,13 @@ from server.bench.common import corridor_marks, default_data_dir, stats, write_j
 from server.bench.load import (
     RssSampler,
     cpu_seconds,
+    databases,
     drive,
     load_frames,
     meets,
 )
 from server.process import ADMIN, ServerProcess
+from server.storage.pgserver import PostgresUnavailable
 
 WORKER_HEADER = "X-Teachrepeat-Worker"
 
@@ -117,12 +119,16 @@ def cluster_run(
     rss_every_s: float,
     server_env: dict[str, str] | None = None,
     lockstep: bool = False,
+    database_url: str | None = None,
 ) -> dict[str, Any]:
-    """Start ``serve --workers processes`` on a fresh database, teach, drive ``robots``
-    clients through HAProxy; the figures of this run."""
+    """Start ``serve --workers processes`` on a fresh database (``database_url``: a new
+    PostgreSQL database), teach, drive ``robots`` clients through HAProxy; the figures of
+    this run."""
     from server.process import scratch_server
 
-    with scratch_server("load.sqlite", extra_env=server_env, workers=processes) as server:
+    with scratch_server(
+        "load.sqlite", extra_env=server_env, workers=processes, database_url=database_url
+    ) as server:
         tokens = _teach(server, ref, robots, goal)
         pids = cluster_processes(server.proc.pid)
         pids["launcher"] = server.proc.pid
@@ -214,6 +220,37 @@ def parse_counts(text: str, what: str) -> list[int]:
     return counts
 
 
+def _measured(
+    args: argparse.Namespace,
+    robots: int,
+    processes: int,
+    ref: Path,
+    frames: list[bytes],
+    server_env: dict[str, str],
+    database_url: str | None,
+) -> dict[str, Any]:
+    """One run of :func:`run`, printed as it ends."""
+    result = cluster_run(
+        robots,
+        processes,
+        ref=ref,
+        frames=frames,
+        seconds=args.seconds,
+        warmup_s=args.warmup,
+        rate_hz=args.rate,
+        goal=args.goal or corridor_marks()[max(corridor_marks())],
+        rss_every_s=args.rss_every,
+        server_env=server_env,
+        lockstep=args.lockstep,
+        database_url=database_url,
+    )
+    result["meets_target"] = meets(result, args.p99_ms)
+    print(describe(result) + ("" if result["meets_target"] else "  [misses target]"))
+    for sample in result["error_samples"]:
+        print(f"    error: {sample}")
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     """``bench load --processes P[,P2...]``: runs for every robot count and process count."""
     try:
@@ -224,34 +261,22 @@ def run(args: argparse.Namespace) -> int:
         print(exc)
         return 2
     server_env = dict(kv.split("=", 1) for kv in args.server_env if "=" in kv)
-    goal = args.goal or corridor_marks()[max(corridor_marks())]
     print(
         f"load through HAProxy: {len(frames)} query frames at {args.rate:g} Hz per robot, "
         f"{args.warmup:g} s warm-up + {args.seconds:g} s measured per run; processes "
         f"{processes}, alternating; clients, HAProxy and servers share this machine's "
         f"{os.cpu_count()} cores"
+        + ("; stored on PostgreSQL (throw-away server, same cores)" if args.postgres else "")
     )
     runs = []
-    for robots in counts:
-        for p in processes:
-            result = cluster_run(
-                robots,
-                p,
-                ref=ref,
-                frames=frames,
-                seconds=args.seconds,
-                warmup_s=args.warmup,
-                rate_hz=args.rate,
-                goal=goal,
-                rss_every_s=args.rss_every,
-                server_env=server_env,
-                lockstep=args.lockstep,
-            )
-            result["meets_target"] = meets(result, args.p99_ms)
-            runs.append(result)
-            print(describe(result) + ("" if result["meets_target"] else "  [misses target]"))
-            for sample in result["error_samples"]:
-                print(f"    error: {sample}")
+    try:
+        with databases(args.postgres) as fresh:
+            for robots in counts:
+                for p in processes:
+                    runs.append(_measured(args, robots, p, ref, frames, server_env, fresh()))
+    except PostgresUnavailable as exc:
+        print(f"--postgres: {exc}")
+        return 2
     largest = {}
     for p in processes:
         ok = [r["robots"] for r in runs if r["processes"] == p and r["meets_target"]]
@@ -264,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
             "runs": runs,
             "largest_robots_meeting_target": {str(p): r for p, r in largest.items()},
             "server_env": server_env,
+            "store": "postgresql" if args.postgres else "sqlite",
             "target": {"p99_ms": args.p99_ms, "errors": 0},
             "note": "clients run as threads on the same machine and cores as HAProxy and the "
             "server processes",

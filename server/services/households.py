@@ -9,7 +9,6 @@ passwords as argon2id hashes.
 
 from __future__ import annotations
 
-import sqlite3
 import threading
 import time
 from collections import OrderedDict
@@ -18,7 +17,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from server import schemas
-from server.errors import Conflict, TooMany, Unauthorized
+from server.errors import Conflict, IntegrityViolation, TooMany, Unauthorized
 from server.security import hash_password, hash_token, new_token, verify_password
 from server.storage.repo import Repo
 
@@ -148,7 +147,7 @@ class HouseholdService:
                 if self.repo.household_by_name(body.name) is not None:
                     raise Conflict(f"a household named {body.name!r} exists already")
                 row = self.repo.add_household(body.name, password_hash)
-        except sqlite3.IntegrityError as exc:  # pragma: no cover - a concurrent create
+        except IntegrityViolation as exc:  # pragma: no cover - a concurrent create
             raise Conflict(f"a household named {body.name!r} exists already") from exc
         return schemas.HouseholdPublic(
             id=row.id,

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import sqlite3
 from collections.abc import Sequence
 
 from server import schemas
-from server.errors import Conflict, NotFound
+from server.errors import Conflict, IntegrityViolation, NotFound
 from server.security import hash_token, new_token
 from server.services.households import Identities
 from server.storage.repo import EdgeRow, LocationRow, Pose, Repo, RobotRow
@@ -121,7 +120,7 @@ class RobotService:
                         f"a robot named {body.name!r} is registered already; pick another name"
                     )
                 self.repo.add_robot(body.name, hash_token(token), household)
-        except sqlite3.IntegrityError as exc:  # pragma: no cover - token hash collision
+        except IntegrityViolation as exc:  # pragma: no cover - token hash collision
             raise Conflict("could not register the robot; retry") from exc
         return schemas.RobotRegistered(name=body.name, token=token)
 

@@ -2,28 +2,43 @@
 
 ``migrate(db)`` applies every migration newer than the database's version, in order. A failed
 migration rolls back whole and leaves the database at the previous version.
+
+Migrations are written once, for SQLite and PostgreSQL alike: portable SQL through
+``db.execute`` with ``?`` placeholders and SQLite's type names (``INTEGER PRIMARY KEY``,
+``INTEGER``, ``TEXT``, ``REAL``, ``BLOB``), which :func:`server.storage.database.to_postgres`
+translates on PostgreSQL. The version is kept the same way on both, in ``schema_migrations``.
+Only a rebuild of a referenced table (migration 3) needs a PostgreSQL branch: there a table
+others reference cannot be dropped, and ``ALTER TABLE`` changes it in place instead.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any, TypeVar
 
-import sqlite_utils
-
-Migration = Callable[[sqlite_utils.Database], None]
+Migration = Callable[[Any], None]
+"""A function of a :class:`server.storage.database.Database` (or a plain sqlite-utils
+``Database``) that changes the schema with ``db.execute``."""
+M = TypeVar("M", bound=Migration)
 MIGRATIONS: list[tuple[int, str, Migration, bool]] = []
 
 
-def migration(version: int, *, rebuilds: bool = False) -> Callable[[Migration], Migration]:
+def on_postgres(db: Any) -> bool:
+    """Whether ``db`` is a PostgreSQL database (a migration's own branch)."""
+    return getattr(db, "dialect", "sqlite") == "postgresql"
+
+
+def migration(version: int, *, rebuilds: bool = False) -> Callable[[M], M]:
     """Register ``fn`` as the migration to schema ``version`` (strictly increasing).
 
     ``rebuilds``: the migration rebuilds tables that others reference (SQLite's way to change a
     constraint: create the new table, copy, drop, rename). It then runs with foreign keys off,
     as SQLite's documentation prescribes, so dropping the old table cascades nothing, and every
-    reference is checked (``PRAGMA foreign_key_check``) before it commits."""
+    reference is checked (``PRAGMA foreign_key_check``) before it commits. On PostgreSQL a
+    rebuilding migration has its own branch (:func:`on_postgres`; module docstring)."""
 
-    def register(fn: Migration) -> Migration:
+    def register(fn: M) -> M:
         if MIGRATIONS and version <= MIGRATIONS[-1][0]:
             raise RuntimeError(f"migration {version} registered out of order")
         MIGRATIONS.append((version, fn.__name__, fn, rebuilds))
@@ -33,7 +48,7 @@ def migration(version: int, *, rebuilds: bool = False) -> Callable[[Migration], 
 
 
 @migration(1)
-def initial_schema(db: sqlite_utils.Database) -> None:
+def initial_schema(db: Any) -> None:
     """Tours, locations, edges, images, robots and the teaching state of each robot."""
     db.execute(
         """
@@ -110,7 +125,7 @@ def initial_schema(db: sqlite_utils.Database) -> None:
 
 
 @migration(2)
-def navigation_tasks(db: sqlite_utils.Database) -> None:
+def navigation_tasks(db: Any) -> None:
     """Each robot's tour, its current or last navigation task and a belief snapshot, so a
     restarted server resumes navigation instead of starting from a uniform belief."""
     db.execute(
@@ -133,7 +148,7 @@ def navigation_tasks(db: sqlite_utils.Database) -> None:
 
 
 @migration(3, rebuilds=True)
-def households(db: sqlite_utils.Database) -> None:
+def households(db: Any) -> None:
     """Households own robots and tours (and, through the tours, every image, location, edge and
     task). Everything that existed moves into household 1, ``default``, which has no password
     until the admin sets one. Tour names become unique per household; a robot token can be
@@ -153,40 +168,43 @@ def households(db: sqlite_utils.Database) -> None:
         "VALUES (1, 'default', NULL, ?)",
         (now,),
     )
-    db.execute(
-        """
-        CREATE TABLE robots_new (
-            name TEXT PRIMARY KEY,
-            household_id INTEGER NOT NULL REFERENCES households(id),
-            token_hash TEXT UNIQUE,            -- sha256 of the bearer token, hex; NULL = revoked
-            token_issued_at REAL,
-            created_at REAL NOT NULL
-        )"""
-    )
-    db.execute(
-        "INSERT INTO robots_new (name, household_id, token_hash, token_issued_at, created_at) "
-        "SELECT name, 1, token_hash, created_at, created_at FROM robots"
-    )
-    db.execute("DROP TABLE robots")
-    db.execute("ALTER TABLE robots_new RENAME TO robots")
-    db.execute(
-        """
-        CREATE TABLE tours_new (
-            id INTEGER PRIMARY KEY,
-            household_id INTEGER NOT NULL REFERENCES households(id),
-            name TEXT NOT NULL,
-            created_at REAL NOT NULL,
-            weights BLOB,                      -- learned signature weights (engine), float32
-            weights_images INTEGER,            -- images the weights were learned from
-            UNIQUE (household_id, name)
-        )"""
-    )
-    db.execute(
-        "INSERT INTO tours_new (id, household_id, name, created_at, weights, weights_images) "
-        "SELECT id, 1, name, created_at, weights, weights_images FROM tours"
-    )
-    db.execute("DROP TABLE tours")
-    db.execute("ALTER TABLE tours_new RENAME TO tours")
+    if on_postgres(db):
+        _households_in_place(db)
+    else:
+        db.execute(
+            """
+            CREATE TABLE robots_new (
+                name TEXT PRIMARY KEY,
+                household_id INTEGER NOT NULL REFERENCES households(id),
+                token_hash TEXT UNIQUE,        -- sha256 of the bearer token, hex; NULL = revoked
+                token_issued_at REAL,
+                created_at REAL NOT NULL
+            )"""
+        )
+        db.execute(
+            "INSERT INTO robots_new (name, household_id, token_hash, token_issued_at, created_at) "
+            "SELECT name, 1, token_hash, created_at, created_at FROM robots"
+        )
+        db.execute("DROP TABLE robots")
+        db.execute("ALTER TABLE robots_new RENAME TO robots")
+        db.execute(
+            """
+            CREATE TABLE tours_new (
+                id INTEGER PRIMARY KEY,
+                household_id INTEGER NOT NULL REFERENCES households(id),
+                name TEXT NOT NULL,
+                created_at REAL NOT NULL,
+                weights BLOB,                      -- learned signature weights (engine), float32
+                weights_images INTEGER,            -- images the weights were learned from
+                UNIQUE (household_id, name)
+            )"""
+        )
+        db.execute(
+            "INSERT INTO tours_new (id, household_id, name, created_at, weights, weights_images) "
+            "SELECT id, 1, name, created_at, weights, weights_images FROM tours"
+        )
+        db.execute("DROP TABLE tours")
+        db.execute("ALTER TABLE tours_new RENAME TO tours")
     db.execute(
         """
         CREATE TABLE logins (
@@ -211,8 +229,25 @@ def households(db: sqlite_utils.Database) -> None:
     db.execute("CREATE INDEX audit_at ON audit(at)")
 
 
+def _households_in_place(db: Any) -> None:
+    """Migration 3's table changes on PostgreSQL, where ``robots`` and ``tours`` cannot be
+    dropped and renamed while other tables reference them: the same columns and constraints,
+    made with ``ALTER TABLE`` (new columns come last; every query names its columns)."""
+    for table in ("robots", "tours"):
+        db.execute(
+            f"ALTER TABLE {table} ADD COLUMN household_id INTEGER NOT NULL DEFAULT 1 "
+            "REFERENCES households(id)"
+        )
+        db.execute(f"ALTER TABLE {table} ALTER COLUMN household_id DROP DEFAULT")
+    db.execute("ALTER TABLE robots ALTER COLUMN token_hash DROP NOT NULL")
+    db.execute("ALTER TABLE robots ADD COLUMN token_issued_at REAL")
+    db.execute("UPDATE robots SET token_issued_at = created_at")
+    db.execute("ALTER TABLE tours DROP CONSTRAINT tours_name_key")
+    db.execute("ALTER TABLE tours ADD UNIQUE (household_id, name)")
+
+
 @migration(4)
-def image_poses_and_distinctiveness(db: sqlite_utils.Database) -> None:
+def image_poses_and_distinctiveness(db: Any) -> None:
     """Each image may carry the pose it was taken at (``pose_x``, ``pose_y`` metres,
     ``pose_theta`` radians, in the teaching robot's odometry frame; NULL when the robot sent
     none) and its distinctiveness (``entropy``: the entropy of its retrieval scores against the
@@ -224,7 +259,7 @@ def image_poses_and_distinctiveness(db: sqlite_utils.Database) -> None:
 
 
 @migration(5)
-def learned_changes(db: sqlite_utils.Database) -> None:
+def learned_changes(db: Any) -> None:
     """What the robot learned from its repeat runs, per tour, each change undoable
     (docs/learning.md). ``learned_changes``: one row per change, its ``kind`` ('transitions':
     ``counts`` holds the run's expected motion counts, ``(3, n_edges)`` float64; 'experience':
@@ -257,25 +292,29 @@ def learned_changes(db: sqlite_utils.Database) -> None:
     db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
 
 
-def current_version(db: sqlite_utils.Database) -> int:
+def current_version(db: Any) -> int:
     if "schema_migrations" not in db.table_names():
         return 0
     row = db.execute("SELECT MAX(version) FROM schema_migrations").fetchone()
     return int(row[0] or 0)
 
 
-def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
-    """Bring ``db`` to the newest schema (or to version ``upto``: tests build old databases
-    with it); returns the version it ends at."""
+SCHEMA_MIGRATIONS = (
+    "CREATE TABLE IF NOT EXISTS schema_migrations "
+    "(version INTEGER PRIMARY KEY, name TEXT NOT NULL, applied_at REAL NOT NULL)"
+)
+
+
+def migrate(db: Any, upto: int | None = None) -> int:
+    """Bring ``db`` (SQLite or PostgreSQL, :mod:`server.storage.database`) to the newest schema
+    (or to version ``upto``: tests build old databases with it); returns the version it ends
+    at. Several processes may start together: one migrates, the others wait and see it done."""
+    if on_postgres(db):
+        return _migrate_postgres(db, upto)
     conn = db.conn
-    conn.execute(
-        "CREATE TABLE IF NOT EXISTS schema_migrations "
-        "(version INTEGER PRIMARY KEY, name TEXT NOT NULL, applied_at REAL NOT NULL)"
-    )
+    conn.execute(SCHEMA_MIGRATIONS)
     version = current_version(db)
-    for number, name, fn, rebuilds in MIGRATIONS:
-        if number <= version or (upto is not None and number > upto):
-            continue
+    for number, name, fn, rebuilds in _pending(version, upto):
         keys_on = bool(conn.execute("PRAGMA foreign_keys").fetchone()[0])
         if rebuilds:
             conn.execute("PRAGMA foreign_keys = OFF")  # a no-op inside a transaction
@@ -291,10 +330,7 @@ def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
             broken = conn.execute("PRAGMA foreign_key_check").fetchall() if rebuilds else []
             if broken:
                 raise RuntimeError(f"migration {number} broke references: {broken[:5]}")
-            conn.execute(
-                "INSERT INTO schema_migrations (version, name, applied_at) VALUES (?, ?, ?)",
-                (number, name, time.time()),
-            )
+            _record(db, number, name)
         except BaseException:
             conn.execute("ROLLBACK")
             raise
@@ -305,3 +341,40 @@ def migrate(db: sqlite_utils.Database, upto: int | None = None) -> int:
                 conn.execute("PRAGMA foreign_keys = ON")
         version = number
     return version
+
+
+def _migrate_postgres(db: Any, upto: int | None) -> int:
+    """:func:`migrate` on PostgreSQL: DDL is transactional there, so each migration commits
+    whole or not at all; the write lock (``begin_write``) makes concurrent starts wait."""
+    db.begin_write()
+    try:
+        db.execute(SCHEMA_MIGRATIONS)
+    except BaseException:
+        db.rollback()
+        raise
+    db.commit()
+    version = current_version(db)
+    for number, name, fn, _ in _pending(version, upto):
+        db.begin_write()
+        try:
+            if current_version(db) < number:  # else another process applied it meanwhile
+                fn(db)
+                db.sync_identities()  # rows inserted with their id (migration 3's household)
+                _record(db, number, name)
+        except BaseException:
+            db.rollback()
+            raise
+        db.commit()
+        version = number
+    return version
+
+
+def _pending(version: int, upto: int | None) -> list[tuple[int, str, Migration, bool]]:
+    return [m for m in MIGRATIONS if m[0] > version and (upto is None or m[0] <= upto)]
+
+
+def _record(db: Any, number: int, name: str) -> None:
+    db.execute(
+        "INSERT INTO schema_migrations (version, name, applied_at) VALUES (?, ?, ?)",
+        (number, name, time.time()),
+    )

@@ -1,13 +1,14 @@
-"""All SQL lives here: typed functions over one SQLite file (sqlite-utils), nothing else does I/O.
+"""All SQL lives here: typed functions over one database, nothing else does I/O.
 
-The database runs in WAL mode with foreign keys on. One connection is shared by the threads of
-the server behind a re-entrant lock; :meth:`Repo.transaction` wraps a service call so that
-every teaching step that changes the graph commits whole or not at all.
+The database is a SQLite file (the embedded default: WAL mode, foreign keys on) or a
+PostgreSQL server shared by several processes or machines (``postgresql://...``); the same
+SQL runs on both through :mod:`server.storage.database`. One connection is shared by the
+threads of the server behind a re-entrant lock; :meth:`Repo.transaction` wraps a service call
+so that every teaching step that changes the graph commits whole or not at all.
 """
 
 from __future__ import annotations
 
-import sqlite3
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -16,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import sqlite_utils
 
 from server.domain import Edge, Location, TourGraph
-from server.errors import NotFound, Unavailable
+from server.errors import NotFound
+from server.storage.database import open_database
 from server.storage.migrations import migrate
 
 DEFAULT_HOUSEHOLD = 1
@@ -152,18 +153,12 @@ class LearnedChangeRow:
 
 
 class Repo:
-    """Typed access to one teachrepeat database file (or ``":memory:"``)."""
+    """Typed access to one teachrepeat database: a SQLite file (a path, ``sqlite:///path`` or
+    ``":memory:"``) or a ``postgresql://`` URL (:func:`server.storage.database.open_database`).
+    A constraint the database enforces raises :class:`~server.errors.IntegrityViolation`."""
 
     def __init__(self, path: Path | str) -> None:
-        if str(path) != ":memory:":
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-        conn = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
-        conn.execute("PRAGMA foreign_keys = ON")
-        conn.execute("PRAGMA busy_timeout = 5000")
-        self.db = sqlite_utils.Database(conn)
-        if str(path) != ":memory:":
-            self.db.enable_wal()
-            conn.execute("PRAGMA synchronous = NORMAL")
+        self.db = open_database(path)
         self._lock = threading.RLock()
         self._depth = 0
         self._reading = False  # the open outer transaction is a read snapshot
@@ -171,7 +166,7 @@ class Repo:
 
     def close(self) -> None:
         with self._lock:
-            self.db.conn.close()
+            self.db.close()
 
     # --- transactions ---------------------------------------------------------------------
 
@@ -183,31 +178,32 @@ class Repo:
                 raise RuntimeError("a write transaction cannot be nested in a read snapshot")
             outer = self._depth == 0
             if outer:
-                self._execute_guarded("BEGIN IMMEDIATE")
+                self.db.begin_write()
             self._depth += 1
             try:
                 yield
             except BaseException:
                 self._depth -= 1
-                if outer and self.db.conn.in_transaction:  # SQLITE_FULL already rolled back
-                    self.db.conn.execute("ROLLBACK")
+                if outer:
+                    self.db.rollback()
                 raise
             self._depth -= 1
             if outer:
-                self._execute_guarded("COMMIT")
+                self._commit()
 
     @contextmanager
     def snapshot(self) -> Iterator[None]:
         """Reads inside see one consistent state of the file and write nothing.
 
-        A deferred transaction: unlike :meth:`transaction` it takes no write lock, so it keeps
-        working on a read-only file. Inside a transaction it joins it; a transaction inside a
-        snapshot is a programming error (``RuntimeError``).
+        A deferred transaction (PostgreSQL: repeatable read, read only): unlike
+        :meth:`transaction` it takes no write lock, so it keeps working on a read-only file.
+        Inside a transaction it joins it; a transaction inside a snapshot is a programming
+        error (``RuntimeError``).
         """
         with self._lock:
             outer = self._depth == 0
             if outer:
-                self._execute_guarded("BEGIN DEFERRED")
+                self.db.begin_read()
                 self._reading = True
             self._depth += 1
             try:
@@ -216,37 +212,52 @@ class Repo:
                 self._depth -= 1
                 if outer:
                     self._reading = False
-                    if self.db.conn.in_transaction:
-                        self.db.conn.execute("COMMIT")  # ends the read; nothing was written
+                    if self.db.in_transaction:
+                        self.db.commit()  # ends the read; nothing was written
 
-    def _execute_guarded(self, sql: str) -> None:
+    def _commit(self) -> None:
         try:
-            with _guard():
-                self.db.conn.execute(sql)
+            self.db.commit()
         except BaseException:
-            if sql == "COMMIT" and self.db.conn.in_transaction:
-                self.db.conn.execute("ROLLBACK")
+            self.db.rollback()
             raise
 
     def _q(self, sql: str, params: Sequence[object] = ()) -> list[tuple]:
-        with self._lock, _guard():
-            return self.db.conn.execute(sql, params).fetchall()
+        with self._lock:
+            return list(self.db.execute(sql, params).fetchall())
+
+    def _writing(self) -> None:
+        if self._reading:
+            raise RuntimeError("a write inside a read snapshot; use Repo.transaction()")
 
     def _x(self, sql: str, params: Sequence[object] = ()) -> int:
-        """Execute a write; returns lastrowid. Call inside :meth:`transaction`."""
-        with self._lock, _guard():
-            if self._reading:
-                raise RuntimeError("a write inside a read snapshot; use Repo.transaction()")
-            return int(self.db.conn.execute(sql, params).lastrowid or 0)
+        """Execute a write; returns the number of rows it changed. Call inside
+        :meth:`transaction`."""
+        with self._lock:
+            self._writing()
+            return int(self.db.execute(sql, params).rowcount)
+
+    def _insert(self, sql: str, params: Sequence[object] = ()) -> int:
+        """Execute an ``INSERT`` into a table with an ``id``; returns the new row's id."""
+        with self._lock:
+            self._writing()
+            return self.db.insert(sql, params)
+
+    def _many(self, sql: str, rows: Sequence[Sequence[object]]) -> None:
+        with self._lock:
+            self._writing()
+            self.db.executemany(sql, rows)
 
     def integrity_ok(self) -> bool:
-        return self._q("PRAGMA integrity_check")[0][0] == "ok"
+        """SQLite: the file passes ``PRAGMA integrity_check``; PostgreSQL: the server answers."""
+        with self._lock:
+            return self.db.integrity_ok()
 
     # --- households -----------------------------------------------------------------------
 
     def add_household(self, name: str, password_hash: str | None) -> HouseholdRow:
         now = time.time()
-        hid = self._x(
+        hid = self._insert(
             "INSERT INTO households (name, password_hash, created_at) VALUES (?, ?, ?)",
             (name, password_hash, now),
         )
@@ -346,7 +357,7 @@ class Repo:
 
     def add_tour(self, name: str, household_id: int = DEFAULT_HOUSEHOLD) -> TourRow:
         now = time.time()
-        tid = self._x(
+        tid = self._insert(
             "INSERT INTO tours (name, household_id, created_at) VALUES (?, ?, ?)",
             (name, household_id, now),
         )
@@ -401,14 +412,14 @@ class Repo:
         server process on the same file compares it with the stamp its runtime was built
         from (docs/scale.md)."""
         row = self._q(
-            "SELECT (SELECT count(*) FROM locations WHERE tour_id = ?1),"
-            " (SELECT coalesce(max(id), 0) FROM locations WHERE tour_id = ?1),"
-            " (SELECT count(*) FROM edges WHERE tour_id = ?1),"
-            " (SELECT coalesce(max(id), 0) FROM edges WHERE tour_id = ?1),"
-            " (SELECT count(*) FROM images WHERE tour_id = ?1 AND pending_robot IS NULL),"
+            "SELECT (SELECT count(*) FROM locations WHERE tour_id = ?),"
+            " (SELECT coalesce(max(id), 0) FROM locations WHERE tour_id = ?),"
+            " (SELECT count(*) FROM edges WHERE tour_id = ?),"
+            " (SELECT coalesce(max(id), 0) FROM edges WHERE tour_id = ?),"
+            " (SELECT count(*) FROM images WHERE tour_id = ? AND pending_robot IS NULL),"
             " (SELECT coalesce(max(id), 0) FROM images"
-            "  WHERE tour_id = ?1 AND pending_robot IS NULL)",
-            (tour_id,),
+            "  WHERE tour_id = ? AND pending_robot IS NULL)",
+            (tour_id,) * 6,
         )[0]
         return tuple(int(x) for x in row)
 
@@ -440,10 +451,9 @@ class Repo:
     def forget_before(self, audit_before: float, now: float) -> tuple[int, int]:
         """Delete audit entries written before ``audit_before`` and logins expired by ``now``
         (unix times, s); returns how many of each."""
-        with self.transaction(), self._lock, _guard():
-            audit = self.db.conn.execute("DELETE FROM audit WHERE at < ?", (audit_before,))
-            logins = self.db.conn.execute("DELETE FROM logins WHERE expires_at < ?", (now,))
-            return int(audit.rowcount), int(logins.rowcount)
+        with self.transaction():
+            audit = self._x("DELETE FROM audit WHERE at < ?", (audit_before,))
+            return audit, self._x("DELETE FROM logins WHERE expires_at < ?", (now,))
 
     def audit(self, *, limit: int = 100, before_id: int | None = None) -> list[AuditRow]:
         """The newest ``limit`` audit rows (older than ``before_id`` when given), newest first."""
@@ -492,7 +502,7 @@ class Repo:
         return str(rows[0][0])
 
     def add_location(self, tour_id: int, name: str) -> int:
-        return self._x(
+        return self._insert(
             "INSERT INTO locations (tour_id, name, created_at) VALUES (?, ?, ?)",
             (tour_id, name, time.time()),
         )
@@ -529,7 +539,7 @@ class Repo:
         return out
 
     def add_edge(self, tour_id: int, source_id: int, target_id: int) -> int:
-        return self._x(
+        return self._insert(
             "INSERT INTO edges (tour_id, source_id, target_id, created_at) VALUES (?, ?, ?, ?)",
             (tour_id, source_id, target_id, time.time()),
         )
@@ -568,14 +578,12 @@ class Repo:
         """Store the distinctiveness (nats) of the tour's images, all at once: ``items`` is
         ``(image id, entropy)`` for every image of the tour; the count is kept with the tour
         (:meth:`entropy_images`)."""
-        with self.transaction(), self._lock, _guard():
-            self.db.conn.executemany(
+        with self.transaction():
+            self._many(
                 "UPDATE images SET entropy = ? WHERE id = ? AND tour_id = ?",
                 [(float(h), int(i), tour_id) for i, h in items],
             )
-            self.db.conn.execute(
-                "UPDATE tours SET entropy_images = ? WHERE id = ?", (len(items), tour_id)
-            )
+            self._x("UPDATE tours SET entropy_images = ? WHERE id = ?", (len(items), tour_id))
 
     def entropy_images(self, tour_id: int) -> int | None:
         """How many images the stored entropies were computed over (``None``: never)."""
@@ -610,7 +618,7 @@ class Repo:
             owner, value = "pending_robot", pending_robot
         seq = self._q(f"SELECT COALESCE(MAX(seq), -1) + 1 FROM images WHERE {owner} = ?", (value,))
         x, y, theta = pose if pose is not None else (None, None, None)
-        return self._x(
+        return self._insert(
             f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg, "
             "pose_x, pose_y, pose_theta) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (tour_id, value, seq[0][0], timestamp, v, w, width, height, jpeg, x, y, theta),
@@ -649,17 +657,13 @@ class Repo:
 
     def move_pending_to_edge(self, robot: str, edge_id: int) -> int:
         """Hand the robot's open path to ``edge_id``, keeping the order; returns the count."""
-        with self._lock, _guard():
-            cur = self.db.conn.execute(
-                "UPDATE images SET edge_id = ?, pending_robot = NULL WHERE pending_robot = ?",
-                (edge_id, robot),
-            )
-            return int(cur.rowcount)
+        return self._x(
+            "UPDATE images SET edge_id = ?, pending_robot = NULL WHERE pending_robot = ?",
+            (edge_id, robot),
+        )
 
     def discard_pending(self, robot: str) -> int:
-        with self._lock, _guard():
-            cur = self.db.conn.execute("DELETE FROM images WHERE pending_robot = ?", (robot,))
-            return int(cur.rowcount)
+        return self._x("DELETE FROM images WHERE pending_robot = ?", (robot,))
 
     def copy_last_pending_to_location(self, robot: str, location_id: int) -> int | None:
         """Give ``location_id`` a copy of the last image of the robot's open path, marked as
@@ -670,7 +674,7 @@ class Repo:
         )
         if not last:
             return None
-        return self._x(
+        return self._insert(
             "INSERT INTO images (tour_id, location_id, seq, timestamp, v, w, width, height, "
             "jpeg, features, pose_x, pose_y, pose_theta) SELECT tour_id, ?, -1, timestamp, v, "
             "w, width, height, jpeg, features, pose_x, pose_y, pose_theta FROM images WHERE id = ?",
@@ -679,11 +683,7 @@ class Repo:
 
     def drop_path_copies(self, location_id: int) -> int:
         """Remove the images :meth:`copy_last_pending_to_location` gave ``location_id``."""
-        with self._lock, _guard():
-            cur = self.db.conn.execute(
-                "DELETE FROM images WHERE location_id = ? AND seq < 0", (location_id,)
-            )
-            return int(cur.rowcount)
+        return self._x("DELETE FROM images WHERE location_id = ? AND seq < 0", (location_id,))
 
     def features(self, image_ids: Sequence[int]) -> dict[int, bytes | None]:
         """Stored engine features of the given images (``None`` where not extracted yet)."""
@@ -699,10 +699,8 @@ class Repo:
         return out
 
     def set_features(self, items: Sequence[tuple[int, bytes]]) -> None:
-        with self.transaction(), self._lock, _guard():
-            self.db.conn.executemany(
-                "UPDATE images SET features = ? WHERE id = ?", [(b, i) for i, b in items]
-            )
+        with self.transaction():
+            self._many("UPDATE images SET features = ? WHERE id = ?", [(b, i) for i, b in items])
 
     # --- learned changes (migration 5) ---------------------------------------------------
 
@@ -722,7 +720,7 @@ class Repo:
         ``max_per_image``, the oldest experiences of an image beyond it are dropped (their
         change keeps its other images). Returns the change's id."""
         with self.transaction():
-            change = self._x(
+            change = self._insert(
                 "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary, counts) "
                 "VALUES (?, ?, ?, ?, ?, ?)",
                 (tour_id, kind, now, source, summary, counts),
@@ -841,9 +839,9 @@ class Repo:
         """Insert or replace the robot's navigation row (one transaction)."""
         with self.transaction():
             self._x(
-                "INSERT OR REPLACE INTO navigation (robot, tour_id, task_id, goal_location_id, "
-                "state, reason, started_at, ended_at, steps, belief, belief_images, belief_at) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                f"INSERT INTO navigation ({_NAVIGATION}) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (robot) DO UPDATE SET "
+                + ", ".join(f"{c} = excluded.{c}" for c in _NAVIGATION.split(", ")[1:]),
                 (
                     row.robot,
                     row.tour_id,
@@ -868,6 +866,12 @@ class Repo:
         )
         return [r[0] for r in rows]
 
+
+_NAVIGATION = (
+    "robot, tour_id, task_id, goal_location_id, state, reason, started_at, ended_at, steps, "
+    "belief, belief_images, belief_at"
+)
+"""The columns of a navigation row, the key (``robot``) first."""
 
 _IMAGE_EXTRAS = "pose_x, pose_y, pose_theta, entropy"
 """The per-image columns of migration 4, in this order."""
@@ -895,27 +899,3 @@ def _owned_by(household_id: int | None, prefix: str = "") -> tuple[str, tuple[ob
     if household_id is None:
         return "", ()
     return f" WHERE {prefix}household_id = ?", (household_id,)
-
-
-@contextmanager
-def _guard() -> Iterator[None]:
-    """Turn storage failures a user can act on (disk full, read-only file) into named errors."""
-    try:
-        yield
-    except sqlite3.OperationalError as exc:
-        mapped = _storage_error(exc)
-        if mapped is None:
-            raise
-        raise mapped from exc
-
-
-def _storage_error(exc: sqlite3.OperationalError) -> Unavailable | None:
-    """The named error for a storage failure a user can act on, else ``None``."""
-    text = str(exc).lower()
-    if "readonly" in text or "read-only" in text:
-        return Unavailable("the database is read-only; check the file's permissions and disk")
-    if "full" in text:
-        return Unavailable("the disk holding the database is full; free space and retry")
-    if "locked" in text or "busy" in text:
-        return Unavailable("the database is busy; retry in a moment")
-    return None

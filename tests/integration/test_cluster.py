@@ -2,7 +2,8 @@
 
 Affinity (each robot's requests reach one process, two robots on two processes), a process
 killed with SIGKILL in the middle of a navigation comes back and its robot carries on, and
-several processes opening or writing the same SQLite file at once.
+several processes opening or writing the same database at once: each on a SQLite file and on a
+PostgreSQL database (the ``store`` fixture, tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from conftest import assert_stored_in
 
 from robot_client.client import GATEWAY_ERRORS
 from server.bench.load_cluster import WORKER_HEADER, cluster_processes
@@ -74,11 +76,12 @@ OPEN_AND_WRITE = textwrap.dedent(
 )
 
 
-def test_processes_migrate_and_write_one_fresh_database_at_once(tmp_path: Path) -> None:
-    """Four processes open a database file that does not exist yet at the same moment (each
-    migrates it, or finds it migrated while it waited), then write to it together: WAL and
-    the busy timeout make them take turns; nothing fails and nothing is lost."""
-    db = tmp_path / "shared.sqlite"
+def test_processes_migrate_and_write_one_fresh_database_at_once(store: Path | str) -> None:
+    """Four processes open a database that is empty or does not exist yet at the same moment
+    (each migrates it, or finds it migrated while it waited), then write to it together: they
+    take turns (SQLite: WAL and the busy timeout; PostgreSQL: the write lock); nothing fails
+    and nothing is lost."""
+    db = store
     procs = [
         subprocess.Popen(
             [sys.executable, "-c", OPEN_AND_WRITE, str(db), f"p{i}", "100"],
@@ -102,8 +105,9 @@ def test_processes_migrate_and_write_one_fresh_database_at_once(tmp_path: Path) 
 
 
 @pytest.fixture()
-def cluster(tmp_path: Path) -> Iterator[ServerProcess]:
-    server = start_server(tmp_path / "cluster.sqlite", workers=2)
+def cluster(tmp_path: Path, store: Path | str) -> Iterator[ServerProcess]:
+    url = store if isinstance(store, str) else None
+    server = start_server(tmp_path / "cluster.sqlite", workers=2, database_url=url)
     yield server
     server.stop()
 
@@ -213,13 +217,14 @@ def test_robots_stay_on_their_process_and_one_killed_comes_back(
         assert shown.status_code == 200, shown.text
         places = shown.json()["locations"]
         assert sorted(p["name"] for p in places) == sorted(PLACES.values())
+    assert_stored_in(cluster, tour, (3, 2))
 
 
 # --- two processes, one tour ----------------------------------------------------------------
 
 
 def test_a_tour_taught_further_in_another_process_is_seen_here(
-    tmp_path: Path, shared_data: Path
+    store: Path | str, shared_data: Path
 ) -> None:
     """Two apps on one database file, as two server processes behind HAProxy: a robot held by
     the second navigates a tour, a robot held by the first teaches it a new place, and the
@@ -230,9 +235,8 @@ def test_a_tour_taught_further_in_another_process_is_seen_here(
     from server.app import create_app
     from server.config import Settings
 
-    settings = Settings(
-        db=tmp_path / "shared.sqlite", admin_token=SecretStr(ADMIN), dashboard_port=None
-    )
+    where = {"database_url": store} if isinstance(store, str) else {"db": store}
+    settings = Settings(**where, admin_token=SecretStr(ADMIN), dashboard_port=None)
     ref = sorted((shared_data / "corridor" / "ref").glob("*.jpg"))
     with (
         TestClient(create_app(settings.model_copy(update={"worker_name": "w0"}))) as first,

@@ -1,4 +1,5 @@
-"""Through a real uvicorn server: teaching real frames, and a SIGKILL in the middle of a tour."""
+"""Through a real uvicorn server: teaching real frames, and a SIGKILL in the middle of a tour;
+on a SQLite file and on a PostgreSQL database (the ``store`` fixture, tests/conftest.py)."""
 
 from __future__ import annotations
 
@@ -7,17 +8,19 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import make_jpeg
+from conftest import assert_stored_in, make_jpeg, serve_exits_2
 
 from robot_client.client import TeachRepeatClient
 from robot_client.teach import read_marks, teach_folder
+from server.cluster import free_port
 from server.process import ADMIN, ServerProcess, start_server
 from server.storage.repo import Repo
 
 
 @pytest.fixture()
-def server(tmp_path: Path) -> Iterator[ServerProcess]:
-    proc = start_server(tmp_path / "live.sqlite")
+def server(tmp_path: Path, store: Path | str) -> Iterator[ServerProcess]:
+    url = store if isinstance(store, str) else None
+    proc = start_server(tmp_path / "live.sqlite", database_url=url)
     yield proc
     proc.stop()
 
@@ -53,6 +56,18 @@ def test_teach_the_real_corridor_frames(
         ("hall", "office", 36, pytest.approx(3.5)),
         ("office", "kitchen", 36, pytest.approx(3.5)),
     ]
+    assert_stored_in(server, report.tour.id, (4, 3))
+
+
+def test_serve_says_when_postgresql_cannot_be_reached_without_the_password(
+    tmp_path: Path,
+) -> None:
+    url = f"postgresql://teachrepeat:pw-never-shown@127.0.0.1:{free_port()}/home"
+    done = serve_exits_2(tmp_path / "t.sqlite", env={"TEACHREPEAT_DATABASE_URL": url})
+    assert "cannot connect to the database server postgresql://teachrepeat:***@127.0.0.1" in (
+        done.stderr
+    )
+    assert "pw-never-shown" not in done.stdout + done.stderr
 
 
 def test_sigkill_during_teaching_leaves_a_consistent_file(server: ServerProcess) -> None:
@@ -94,7 +109,7 @@ def test_sigkill_during_teaching_leaves_a_consistent_file(server: ServerProcess)
     worker.join(timeout=10)
     client.close()
 
-    repo = Repo(server.db)
+    repo = Repo(server.database())
     assert repo.integrity_ok()
     assert repo.short_edges() == []
     graph = repo.graph(tour.id)
@@ -103,7 +118,7 @@ def test_sigkill_during_teaching_leaves_a_consistent_file(server: ServerProcess)
     repo.close()
 
     # restart on the same file: teaching goes on where the file says it was
-    again = start_server(server.db)
+    again = start_server(server.db, database_url=server.database_url)
     try:
         with TeachRepeatClient(again.url, token) as robot:  # itself, after the restart
             state = robot.state("rover")

@@ -92,6 +92,23 @@ def test_routes_hold_no_sql() -> None:
             assert word not in text, f"{path.relative_to(ROOT)} contains {word!r}"
 
 
+DRIVERS = {"sqlite3", "sqlite_utils", "psycopg"}
+SQLITE_FILE_COPIERS = {"server/recording/replay.py", "server/bench/nav_sweep.py"}
+"""They copy SQLite files as files (a recording's replay, a benchmark's tour cache)."""
+
+
+def test_only_storage_talks_to_the_database_driver() -> None:
+    """SQLite and PostgreSQL sit behind server/storage (docs/scale.md): services see
+    ``IntegrityViolation``, never a driver's exception."""
+    for package in ("server", "robot_client", "web"):
+        for path in python_files(package):
+            where = str(path.relative_to(ROOT))
+            if where.startswith("server/storage/") or where in SQLITE_FILE_COPIERS:
+                continue
+            used = {n.split(".")[0] for n in imports(path)} & DRIVERS
+            assert not used, f"{where} imports {used}"
+
+
 def test_no_machine_paths_in_code() -> None:
     for package in ("server", "robot_client", "web"):
         for path in python_files(package):
