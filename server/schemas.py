@@ -24,16 +24,21 @@ RobotName = Annotated[
     Field(description="Lower-case letters, digits, '-' and '_', 1 to 64 characters."),
 ]
 _SPACE = "\t\n\v\f\r \x85\xa0\u1680\u2000-\u200a\u2028\u2029\u202f\u205f\u3000\ufeff"
-TRIMMED = f"^[^{_SPACE}](?:[\\s\\S]*[^{_SPACE}])?$"
-"""No white space at either end. The characters are listed, not ``\\s``: the OpenAPI document's
-regex (ECMAScript) and Python's disagree on what ``\\s`` is, and then a name the document
-allows would be refused, or one it forbids taken."""
+_CONTROL = "\\x00-\\x1f\\x7f"
+TRIMMED = f"^[^{_SPACE}{_CONTROL}](?:[^{_CONTROL}]*[^{_SPACE}{_CONTROL}])?$"
+"""No white space at either end and no control character anywhere (PostgreSQL's text cannot
+hold U+0000, and no name needs a tab or a line break). The characters are listed, not
+``\\s``: the OpenAPI document's regex (ECMAScript) and Python's disagree on what ``\\s`` is,
+and then a name the document allows would be refused, or one it forbids taken."""
 _TRIMMED = re.compile(TRIMMED)
 
 
 def _trimmed(value: str) -> str:
     if not _TRIMMED.fullmatch(value):
-        raise ValueError("must not start or end with white space")
+        raise ValueError(
+            "must not start or end with white space, nor hold a control character (U+0000 to "
+            "U+001F, U+007F)"
+        )
     return value
 
 
