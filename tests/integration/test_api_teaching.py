@@ -351,7 +351,9 @@ def test_a_tour_id_that_is_not_a_positive_json_integer_is_422(api: Api, tour: ob
 
 
 @pytest.mark.parametrize("name", ["   ", " home", "home ", "ho\x00me", "ho\tme", "home\x7f1"])
-def test_a_tour_name_with_spaces_at_either_end_or_a_control_character_is_422(api: Api, name: str) -> None:
+def test_a_tour_name_with_spaces_at_either_end_or_a_control_character_is_422(
+    api: Api, name: str
+) -> None:
     robot = api.register()
     before = api.dump()
     assert_refused(api, api.client.post("/tours", json={"name": name}, headers=robot), 422, "name")
