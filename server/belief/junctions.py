@@ -268,7 +268,7 @@ def find_junctions(
 
 
 def _n_junctions(graph: TourGraph) -> int:
-    return sum(1 for loc in graph.locations if loc.id == -1 and loc.name.startswith("(junction"))
+    return sum(1 for loc in graph.locations if loc.junction)
 
 
 def _slice(edge: Edge, source: int, target: int, lo: int, hi: int) -> Edge:
@@ -314,7 +314,7 @@ def refine(graph: TourGraph, junctions: Sequence[Junction], *, first_name: int =
             applied.append(False)
             continue
         j = len(locations)
-        locations.append(Location(junction_name(first_name + len(added)), (), -1))
+        locations.append(Location(junction_name(first_name + len(added)), (), -1, junction=True))
         ka, kb = junction.keep_shared, junction.other_shared
         for k in range(kb):
             mapped[int(b.image_ids[k])] = int(a.image_ids[junction.mapping[k]])
