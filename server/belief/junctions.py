@@ -1,7 +1,10 @@
 """Junctions from shared path prefixes (001 section 10.3): refine the taught graph.
 
-001 names it as future work: "if two paths share a long common prefix, we could introduce a new
-junction location where they split". Two edges that leave the same place along the same images
+001 proposes it as future work: "If two edges start at the same location, we can trace the
+similarity of the images, starting from the first image. If the two paths have similar
+prefixes, we can decide to unify these prefixes, causing a new location to be added to the
+graph where the two paths becomes distinct. We can apply this procedure iteratively until no
+new locations are found." Two edges that leave the same place along the same images
 for a while and then part ways (kitchen -> office and kitchen -> bathroom both go down the
 hall first) are taught as two unrelated edges: while the robot drives the hall, the belief is
 split between them and the policy's votes for either goal disagree about which edge the robot
@@ -10,19 +13,18 @@ without spin images) and the two remainders edges from the junction to the origi
 the belief, the policy and the engine then run on the refined graph unchanged.
 
 **Finding** (:func:`find_junctions`). For every pair of edges ``a``, ``b`` leaving one location
-the caller gives the ``(n_a, n_b)`` image similarity matrix ``S`` (the engine's similarity,
-the same scores the tracker uses; :mod:`server.services.junctions` computes it). A cell
-*matches* when ``S[i, j] >= min_similarity``. The shared prefix is the longest monotone path of
-matching cells from ``(0, 0)`` (both first images must match: paths that differ from the first
-image share nothing), moving by steps ``(di, dj)`` with ``0 <= di, dj <= 1 + max_skip`` (not
-both 0): either teaching run may have been slower, and up to ``max_skip`` images in a row may
-be blurred or occluded. Its end ``(i*, j*)`` is the reachable cell with the largest ``i + j``
-(ties: the smaller ``|i - j|``, then the smaller ``i``); ``a``'s first ``i* + 1`` and ``b``'s
-first ``j* + 1`` images are shared. A pair becomes a junction when both shares are at least
+(to different targets) the caller gives the ``(n_a, n_b)`` matrix of the engine's error between
+their images (:mod:`server.services.junctions`; lower is more alike). :func:`shared_prefix`
+aligns ``b``'s images with ``a``'s from the first ones on (both first images must match: paths
+that differ from the first image share nothing), with a bounded speed ratio, and follows the
+alignment as long as its images match (``error <= max_error``, a few misses in a row
+tolerated); the alignment with the least summed error is taken, which on a self-similar
+corridor still follows the true correspondence (measured on the corridor data: within the
+ground truth's +-2 images). A pair becomes a junction when both shares are at least
 ``min_shared`` images and both remainders at least ``min_remainder`` (the paths really part).
-Per location, the pair with the longest share (``i* + j*``) is refined first; the search then
-runs again on the refined graph, so three edges down one corridor that part at two places give
-two junctions in a row.
+Per location, the pair with the longest share is refined first; the search then runs again on
+the refined graph, so three edges down one corridor that part at two places give two junctions
+in a row.
 
 **Applying** (:func:`refine`). A :class:`Junction` names its edges by their first image's
 storage id (image ids never change; edge indices do), so a stored junction applies to the graph
@@ -52,14 +54,14 @@ from server.domain import Edge, Location, TourGraph
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-#: The similarity of two image sequences: ``(ids_a, ids_b) -> (len(ids_a), len(ids_b))`` in
-#: [0, 1], by storage image id.
-PairSimilarity = Callable[[IntArray, IntArray], FloatArray]
+#: The engine's error between two image sequences, by storage image id:
+#: ``(ids_a, ids_b) -> (len(ids_a), len(ids_b))``, >= 0, lower = more alike.
+PairError = Callable[[IntArray, IntArray], FloatArray]
 
 __all__ = [
     "Junction",
     "JunctionParams",
-    "PairSimilarity",
+    "PairError",
     "Refinement",
     "find_junctions",
     "junction_name",
@@ -72,29 +74,40 @@ __all__ = [
 class JunctionParams:
     """When two edges' first images count as one shared path.
 
-    * ``min_similarity`` (0.5): an image pair matches when the engine's similarity of the two
-      (eq. 4 of 001, in [floor, 1], the best candidate of a query is 1; the mean of both
-      directions, :mod:`server.services.junctions`) is at least this. Chosen on the simulated
-      apartment's taught images (docs/learning.md, "Junctions"), the same for every home.
+    * ``max_error`` (0.665, engine error units): two images match when the engine's error
+      between them is at most this: ``feature_weight * e_features + signature_weight * d``,
+      the quantity 001's eq. 4 normalises into the tracker's similarity, before that
+      normalisation (which is relative to the other candidates of one query and cannot say
+      whether two images show the same place). Chosen on the corridor data (two traversals of
+      one real corridor, beside images of elsewhere): the corridor's images against the other
+      traversal score 0.56-0.66, against elsewhere 0.68 and more (docs/learning.md,
+      "Junctions"); the same for every tour.
     * ``min_shared`` (8 images): both edges must share at least this many images (at the
       simulator's 2 images per metre about 4 m of corridor); a shorter common start is only
       the place itself.
     * ``min_remainder`` (3 images): both edges must go on for at least this many images after
       the split (else one path is the other one's prefix, not a fork).
-    * ``max_skip`` (1 image): images in a row either path may skip while the paths still
-      match (blur, a person passing).
+    * ``max_step`` (2), ``max_stall`` (2): the alignment advances 0 to ``max_step`` images of
+      the first edge per image of the second, at most ``max_stall`` zeros in a row (the two
+      teaching runs' speeds may differ up to about 2-3 times).
+    * ``max_skip`` (1 image): images in a row the second path may miss while the paths still
+      count as shared (blur, a person passing).
     """
 
-    min_similarity: float = 0.5
+    max_error: float = 0.665
     min_shared: int = 8
     min_remainder: int = 3
+    max_step: int = 2
+    max_stall: int = 2
     max_skip: int = 1
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.min_similarity) and 0.0 < self.min_similarity <= 1.0):
-            raise ValueError("min_similarity must lie in (0, 1]")
+        if not (math.isfinite(self.max_error) and self.max_error > 0.0):
+            raise ValueError("max_error must be finite and > 0")
         if self.min_shared < 1 or self.min_remainder < 1 or self.max_skip < 0:
             raise ValueError("need min_shared >= 1, min_remainder >= 1, max_skip >= 0")
+        if self.max_step < 1 or self.max_stall < 0:
+            raise ValueError("need max_step >= 1 and max_stall >= 0")
 
 
 @dataclass(frozen=True)
@@ -148,59 +161,87 @@ def junction_name(k: int) -> str:
     return f"(junction {k})"
 
 
-def shared_prefix(match: npt.ArrayLike, max_skip: int = 1) -> tuple[int, int, IntArray] | None:
-    """The longest shared prefix of two image sequences (module doc).
+def shared_prefix(
+    error: npt.ArrayLike,
+    max_error: float,
+    *,
+    max_step: int = 2,
+    max_stall: int = 2,
+    max_skip: int = 1,
+) -> tuple[int, int, IntArray] | None:
+    """The shared prefix of two image sequences and how they align (module doc).
+
+    An alignment gives every image ``j`` of ``b`` an image ``i_j`` of ``a``: ``i_0 = 0``, then
+    ``i_j - i_(j-1)`` in ``0..max_step`` (at most ``max_stall`` zeros in a row: ``b`` may have
+    been taught up to ``max_stall + 1`` times slower, or ``max_step`` times faster). Image ``j``
+    *matches* when ``error[i_j, j] <= max_error``; at most ``max_skip`` images in a row may
+    miss. The shared prefix ends at the last matching image ``j*`` of the alignment that gets
+    furthest along ``b``; among those, the one with the least summed error (a Viterbi pass
+    over ``b``'s images; each contributes once, so no alignment is favoured for its length).
 
     Args:
-        match: ``(n_a, n_b)`` bool, whether image ``i`` of ``a`` matches image ``j`` of ``b``.
-        max_skip: images either sequence may skip per step.
+        error: ``(n_a, n_b)`` engine error of image ``i`` of ``a`` against image ``j`` of ``b``
+            (lower: more alike).
+        max_error: the largest error that still matches.
 
     Returns:
-        ``(i*, j*, mapping)``: the end cell and ``(j* + 1,)`` int, for each image of ``b`` up to
-        ``j*`` the image of ``a`` it is aligned with (an image ``b`` skipped takes the aligned
-        one before it); ``None`` when the first images do not match.
+        ``(i*, j*, mapping)``: the last shared image of each and ``(j* + 1,)`` int, the image of
+        ``a`` each of ``b``'s first ``j* + 1`` images is aligned with; ``None`` when the first
+        images do not match.
     """
-    m = np.asarray(match, dtype=bool)
-    if m.ndim != 2 or m.size == 0 or not m[0, 0]:
+    e = np.asarray(error, dtype=np.float64)
+    if e.ndim != 2 or e.size == 0 or not e[0, 0] <= max_error:
         return None
-    n_a, n_b = m.shape
-    reach = np.zeros((n_a, n_b), dtype=bool)
-    prev = np.full((n_a, n_b, 2), -1, dtype=np.int64)
-    reach[0, 0] = True
-    step = 1 + max_skip
-    # cells in order of i + j: every predecessor of a cell has a smaller i + j
-    for s in range(1, n_a + n_b - 1):
-        for i in range(max(0, s - n_b + 1), min(n_a, s + 1)):
-            j = s - i
-            if not m[i, j]:
-                continue
-            for di in range(0, step + 1):
-                for dj in range(0, step + 1):
-                    if di == dj == 0 or i - di < 0 or j - dj < 0:
+    n_a, n_b = e.shape
+    S, M = max_stall + 1, max_skip + 1
+    inf = np.inf
+    cost = np.full((S, M, n_a), inf)  # best summed error ending at image i, by stall / miss
+    cost[0, 0, 0] = e[0, 0]
+    # back[j][s, m, i] = (step, previous s, previous m), -1 where unreachable
+    back: list[npt.NDArray[np.int64]] = [np.full((S, M, n_a, 3), -1, dtype=np.int64)]
+    best_end = (0, 0, 0, 0)  # (j, s, i) of the furthest matching end, m = 0
+    for j in range(1, n_b):
+        miss = e[:, j] > max_error
+        new = np.full((S, M, n_a), inf)
+        ptr = np.full((S, M, n_a, 3), -1, dtype=np.int64)
+        for s in range(S):
+            for m in range(M):
+                prev = cost[s, m]
+                if not np.isfinite(prev).any():
+                    continue
+                for step in range(max_step + 1):
+                    s2 = s + 1 if step == 0 else 0
+                    if s2 >= S:
                         continue
-                    if reach[i - di, j - dj]:
-                        reach[i, j] = True
-                        prev[i, j] = (i - di, j - dj)
-                        break
-                if reach[i, j]:
-                    break
-    cells = np.argwhere(reach)
-    key = np.lexsort((cells[:, 0], np.abs(cells[:, 0] - cells[:, 1]), -(cells[:, 0] + cells[:, 1])))
-    i_end, j_end = (int(x) for x in cells[key[0]])
-    aligned = np.full(j_end + 1, -1, dtype=np.int64)
-    i, j = i_end, j_end
-    while i >= 0:
-        if aligned[j] < 0:
-            aligned[j] = i
-        i, j = (int(x) for x in prev[i, j])
-    for jj in range(1, j_end + 1):  # an image of b the path skipped: the one before
-        if aligned[jj] < 0:
-            aligned[jj] = aligned[jj - 1]
-    return i_end, j_end, aligned
+                    src = np.full(n_a, inf)
+                    src[step:] = prev[: n_a - step]
+                    cand = src + e[:, j]
+                    for m2, rows in ((0, ~miss), (m + 1, miss)):
+                        if m2 >= M:
+                            continue
+                        better = rows & (cand < new[s2, m2])
+                        new[s2, m2][better] = cand[better]
+                        ptr[s2, m2][better] = (step, s, m)
+        cost = new
+        back.append(ptr)
+        if not np.isfinite(cost).any():
+            break
+        ends = cost[:, 0]  # (S, n_a) ending on a match
+        if np.isfinite(ends).any():
+            s_end, i_end = np.unravel_index(int(np.argmin(ends)), ends.shape)
+            best_end = (j, int(s_end), 0, int(i_end))
+    j_end, s, m, i = best_end
+    mapping = np.zeros(j_end + 1, dtype=np.int64)
+    for j in range(j_end, 0, -1):
+        mapping[j] = i
+        step, s, m = (int(x) for x in back[j][s, m, i])
+        i -= step
+    mapping[0] = i  # 0: every alignment starts at both first images
+    return int(mapping[j_end]), j_end, mapping
 
 
 def _candidates(
-    graph: TourGraph, similarity: PairSimilarity, params: JunctionParams
+    graph: TourGraph, error: PairError, params: JunctionParams
 ) -> list[tuple[int, Junction]]:
     """Every pair of edges leaving one place that qualifies, as ``(share, junction)``."""
     out: list[tuple[int, Junction]] = []
@@ -211,14 +252,20 @@ def _candidates(
                 a, b = graph.edges[ja], graph.edges[jb]
                 if a.target == b.target:
                     continue  # a re-taught path, not a fork
-                sim = np.asarray(
-                    similarity(np.asarray(a.image_ids), np.asarray(b.image_ids)), np.float64
+                err = np.asarray(
+                    error(np.asarray(a.image_ids), np.asarray(b.image_ids)), np.float64
                 )
-                if sim.shape != (a.n_images, b.n_images):
+                if err.shape != (a.n_images, b.n_images):
                     raise ValueError(
-                        f"similarity gave {sim.shape}, expected ({a.n_images}, {b.n_images})"
+                        f"error gave {err.shape}, expected ({a.n_images}, {b.n_images})"
                     )
-                found = shared_prefix(sim >= params.min_similarity, params.max_skip)
+                found = shared_prefix(
+                    err,
+                    params.max_error,
+                    max_step=params.max_step,
+                    max_stall=params.max_stall,
+                    max_skip=params.max_skip,
+                )
                 if found is None:
                     continue
                 i, j, mapping = found
@@ -236,7 +283,7 @@ def _candidates(
 
 def find_junctions(
     graph: TourGraph,
-    similarity: PairSimilarity,
+    error: PairError,
     params: JunctionParams | None = None,
     *,
     max_junctions: int = 64,
@@ -245,7 +292,7 @@ def find_junctions(
 
     Args:
         graph: the tour's graph (taught, or already refined by earlier junctions).
-        similarity: image similarity of two sequences of image ids (:data:`PairSimilarity`).
+        error: the engine's error between two sequences of image ids (:data:`PairError`).
         params: thresholds (:class:`JunctionParams`).
         max_junctions: stop after this many (each adds a place and an edge).
     """
@@ -253,7 +300,7 @@ def find_junctions(
     found: list[Junction] = []
     current = graph
     while len(found) < max_junctions:
-        cands = _candidates(current, similarity, p)
+        cands = _candidates(current, error, p)
         if not cands:
             break
         # the longest share first; ties: the earlier pair (deterministic)

@@ -2,10 +2,9 @@
 
 ``POST /tours/{tour}/junctions`` searches the tour's graph (as its runtime has it: refined by
 the junctions applied before) for edges that leave one place along the same images and then
-part (:func:`server.belief.junctions.find_junctions`), with the engine's similarity of the
-taught images to each other: every image of those edges is queried against the tour's index,
-exactly as the tracker queries a camera frame, and the similarity of two images is the mean of
-both directions (:meth:`TourIndex.query`'s per-image similarity, eq. 4 of 001). Each junction
+part (:func:`server.belief.junctions.find_junctions`), with the engine's error between the
+taught images (:class:`EngineErrors`: the two passes' error the tracker's similarity is
+normalised from, with the tour's weights; the mean of both directions). Each junction
 found is stored as a learned change of kind 'junction' (migration 7); the taught edges stay
 untouched in the database, and the tour's runtime applies the stored junctions when it is built
 (:meth:`NavigationService._build`), so deleting the change gives back the earlier graph, index
@@ -31,32 +30,31 @@ from server.storage.repo import Repo
 FloatArray = npt.NDArray[np.float64]
 
 
-class RuntimeSimilarity:
-    """The engine's similarity of two sequences of a tour's images (by storage id), each image
-    queried once against the tour's index (cached)."""
+class EngineErrors:
+    """The engine's error between two sequences of a tour's images (by storage id):
+    ``feature_weight * e_features + signature_weight * d``, the second pass's error of 001's
+    eq. 4 before it is normalised over a query's candidates (:class:`TourIndex`), with the
+    tour's signature weights; symmetric in its two images (the mean of both directions)."""
 
     def __init__(self, rt: TourRuntime) -> None:
         self.rt = rt
         self.canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
-        self._rows: dict[int, FloatArray] = {}
-        self.queries = 0
+        self.pairs = 0
 
-    def row(self, image_id: int) -> FloatArray:
-        """``(n_images,)`` similarity of the image to every image of the tour."""
-        row = self._rows.get(image_id)
-        if row is None:
-            k = self.canonical[image_id]
-            sim = self.rt.index.query(self.rt.features[k], n_states=self.rt.graph.n_states)
-            row = self._rows[image_id] = sim.image
-            self.queries += 1
-        return row
+    def one_way(self, ids_a: npt.NDArray[np.int64], ids_b: npt.NDArray[np.int64]) -> FloatArray:
+        """``(len(ids_a), len(ids_b))`` error of each image of ``a`` as the query."""
+        index, p = self.rt.index, self.rt.index.params
+        cb = np.array([self.canonical[int(i)] for i in ids_b], dtype=np.int64)
+        out = np.empty((len(ids_a), len(cb)))
+        for r, image_id in enumerate(ids_a):
+            q = self.rt.features[self.canonical[int(image_id)]]
+            d = index.signature_distances(q)[cb].astype(np.float64)
+            out[r] = p.feature_weight * index.feature_errors(q, cb) + p.signature_weight * d
+        self.pairs += out.size
+        return out
 
     def __call__(self, ids_a: npt.NDArray[np.int64], ids_b: npt.NDArray[np.int64]) -> FloatArray:
-        ca = np.array([self.canonical[int(i)] for i in ids_a], dtype=np.int64)
-        cb = np.array([self.canonical[int(i)] for i in ids_b], dtype=np.int64)
-        ab = np.stack([self.row(int(i))[cb] for i in ids_a]) if len(ca) else np.zeros((0, len(cb)))
-        ba = np.stack([self.row(int(i))[ca] for i in ids_b]) if len(cb) else np.zeros((0, len(ca)))
-        out: FloatArray = 0.5 * (ab + ba.T)
+        out: FloatArray = 0.5 * (self.one_way(ids_a, ids_b) + self.one_way(ids_b, ids_a).T)
         return out
 
 
@@ -117,7 +115,7 @@ class JunctionService:
         self.repo.tour(tour_id, household)
         rt = self.navigation.runtime(tour_id)
         graph = rt.graph
-        found = find_junctions(graph, RuntimeSimilarity(rt), self.params)
+        found = find_junctions(graph, EngineErrors(rt), self.params)
         if body.dry_run or not found:
             return schemas.JunctionResult(
                 dry_run=body.dry_run,

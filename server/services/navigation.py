@@ -309,9 +309,10 @@ class NavigationService:
         blob, n_images = self.repo.tour_weights(tour_id)
         if blob is not None and n_images == rt.taught_images:
             return np.frombuffer(blob, dtype=np.float32).astype(np.float64)
-        weights = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float64)
-        self.repo.set_tour_weights(tour_id, weights.astype(np.float32).tobytes(), rt.taught_images)
-        return weights
+        stored = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float32)
+        self.repo.set_tour_weights(tour_id, stored.tobytes(), rt.taught_images)
+        # as stored: the first build answers bit for bit as every later one
+        return stored.astype(np.float64)
 
     # --- sessions -------------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from server.belief.junctions import (
     Junction,
     JunctionParams,
-    PairSimilarity,
+    PairError,
     find_junctions,
     junction_name,
     refine,
@@ -29,49 +29,58 @@ from server.policy.costs import cost_to_goal
 from server.policy.voting import decide
 
 
-def naive_prefix(match: np.ndarray, max_skip: int) -> tuple[int, int] | None:
-    """Every monotone path from (0, 0) by recursion; the end with the largest i + j, then the
-    smallest |i - j|, then the smallest i."""
-    if not match[0, 0]:
+def naive_prefix(
+    error: np.ndarray, max_error: float, max_step: int, max_stall: int, max_skip: int
+) -> tuple[int, int, float] | None:
+    """Every alignment by brute force (all step sequences): the furthest last match, then the
+    least summed error; ``(i*, j*, summed error)``."""
+    if not error[0, 0] <= max_error:
         return None
-    n_a, n_b = match.shape
-    seen: set[tuple[int, int]] = set()
-
-    def walk(i: int, j: int) -> None:
-        if (i, j) in seen:
-            return
-        seen.add((i, j))
-        for di, dj in itertools.product(range(max_skip + 2), repeat=2):
-            if (di or dj) and i + di < n_a and j + dj < n_b and match[i + di, j + dj]:
-                walk(i + di, j + dj)
-
-    walk(0, 0)
-    return min(seen, key=lambda c: (-(c[0] + c[1]), abs(c[0] - c[1]), c[0]))
+    n_a, n_b = error.shape
+    best: tuple[int, float, int] = (0, float(error[0, 0]), 0)  # (j*, cost, i*)
+    for steps in itertools.product(range(max_step + 1), repeat=n_b - 1):
+        i, stall, miss, total = 0, 0, 0, float(error[0, 0])
+        for j, step in enumerate(steps, start=1):
+            i += step
+            stall = stall + 1 if step == 0 else 0
+            if i >= n_a or stall > max_stall:
+                break
+            miss = miss + 1 if error[i, j] > max_error else 0
+            if miss > max_skip:
+                break
+            total += float(error[i, j])
+            if miss == 0 and (j, -total) > (best[0], -best[1]):
+                best = (j, total, i)
+    return best[2], best[0], best[1]
 
 
 @settings(max_examples=150, deadline=None)
 @given(
-    st.integers(1, 7),
-    st.integers(1, 7),
+    st.integers(1, 6),
+    st.integers(1, 6),
+    st.integers(1, 2),
+    st.integers(0, 2),
     st.integers(0, 2),
     st.floats(0.2, 0.9),
     st.integers(0, 2**31),
 )
 def test_shared_prefix_equals_naive_reference(
-    n_a: int, n_b: int, skip: int, density: float, seed: int
+    n_a: int, n_b: int, max_step: int, max_stall: int, max_skip: int, thr: float, seed: int
 ) -> None:
-    match = np.random.default_rng(seed).random((n_a, n_b)) < density
-    got = shared_prefix(match, skip)
-    want = naive_prefix(match, skip)
+    error = np.random.default_rng(seed).random((n_a, n_b))
+    got = shared_prefix(error, thr, max_step=max_step, max_stall=max_stall, max_skip=max_skip)
+    want = naive_prefix(error, thr, max_step, max_stall, max_skip)
     if want is None:
         assert got is None
         return
     assert got is not None
     i, j, mapping = got
-    assert (i, j) == want
-    assert mapping.shape == (j + 1,) and np.all(np.diff(mapping) >= 0)
-    assert mapping.min() >= 0 and mapping.max() <= i
-    assert match[mapping[-1], j]  # the end cell is on the path
+    assert j == want[1]
+    assert mapping.shape == (j + 1,) and mapping[0] == 0 and mapping[-1] == i
+    steps = np.diff(mapping)
+    assert np.all((steps >= 0) & (steps <= max_step))
+    assert error[i, j] <= thr
+    assert error[mapping, np.arange(j + 1)].sum() == pytest.approx(want[2])
 
 
 # --- synthetic tours: images carry a "where" code; equal codes look alike --------------------
@@ -84,13 +93,16 @@ def coded_edge(source: int, target: int, codes: list[int], where: dict[int, int]
     return e
 
 
-def similarity_of(where: dict[int, int]) -> PairSimilarity:
-    def sim(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def similarity_of(where: dict[int, int]) -> PairError:
+    """The error of two images: 0.5 when they show the same place (equal codes), else 0.8 (the
+    default threshold is 0.665)."""
+
+    def err(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ca = np.array([where[int(i)] for i in a])
         cb = np.array([where[int(i)] for i in b])
-        return np.where(np.abs(ca[:, None] - cb[None, :]) <= 0, 1.0, 0.1)
+        return np.where(ca[:, None] == cb[None, :], 0.5, 0.8)
 
-    return sim
+    return err
 
 
 def fork(shared: int, rest_a: int, rest_b: int, *, slow_b: bool = False) -> tuple[TourGraph, dict]:
@@ -276,7 +288,9 @@ def test_tracker_and_voting_policy_drive_through_a_junction() -> None:
     assert final_map == goal and final_action.kind is ActionKind.DO_NOTHING
 
 
-@pytest.mark.parametrize("bad", [dict(min_similarity=0.0), dict(min_shared=0), dict(max_skip=-1)])
+@pytest.mark.parametrize(
+    "bad", [dict(max_error=0.0), dict(min_shared=0), dict(max_skip=-1), dict(max_step=0)]
+)
 def test_params_are_checked(bad: dict) -> None:
     with pytest.raises(ValueError):
         JunctionParams(**bad)
