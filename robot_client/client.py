@@ -248,6 +248,13 @@ class TeachRepeatClient:
         """The tour's learned changes (docs/learning.md)."""
         return self._list(schemas.LearnedChange, f"/tours/{tour}/learned")
 
+    def junctions(self, tour: int, *, dry_run: bool = False) -> schemas.JunctionResult:
+        """Find the tour's junctions of shared path prefixes and, unless ``dry_run``, apply
+        each as a learned change (docs/learning.md, "Junctions")."""
+        return self._call(
+            schemas.JunctionResult, "POST", f"/tours/{tour}/junctions", json={"dry_run": dry_run}
+        )
+
     def unlearn(self, tour: int, change: int) -> None:
         """Remove one learned change of the tour."""
         self._request("DELETE", f"/tours/{tour}/learned/{change}")

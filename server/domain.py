@@ -32,7 +32,8 @@ FloatArray = npt.NDArray[np.float64]
 class Location:
     """A named place. ``image_ids`` are the storage ids of its spin images, in order.
     ``junction``: an unnamed place where two taught paths part, learned from their shared
-    prefix (:mod:`server.belief.junctions`); it has no spin images and no storage id."""
+    prefix (:mod:`server.belief.junctions`); its one image is the last view the two paths
+    share (not a spin), and it has no storage id."""
 
     name: str
     image_ids: tuple[int, ...] = ()

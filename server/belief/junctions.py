@@ -1,16 +1,16 @@
 """Junctions from shared path prefixes (001 section 10.3): refine the taught graph.
 
 001 proposes it as future work: "If two edges start at the same location, we can trace the
-similarity of the images, starting from the first image. If the two paths have similar
-prefixes, we can decide to unify these prefixes, causing a new location to be added to the
-graph where the two paths becomes distinct. We can apply this procedure iteratively until no
-new locations are found." Two edges that leave the same place along the same images
-for a while and then part ways (kitchen -> office and kitchen -> bathroom both go down the
-hall first) are taught as two unrelated edges: while the robot drives the hall, the belief is
-split between them and the policy's votes for either goal disagree about which edge the robot
-is on. The refinement makes the shared part one edge to a new **junction** (an unnamed location
-without spin images) and the two remainders edges from the junction to the original targets;
-the belief, the policy and the engine then run on the refined graph unchanged.
+similarity of the images, starting from the first image. If the two paths have similar prefixes,
+we can decide to unify these prefixes, causing a new location to be added to the graph where the
+two paths becomes distinct. We can apply this procedure iteratively until no new locations are
+found." Two edges that leave the same place along the same images for a while and then part ways
+(kitchen -> office and kitchen -> bathroom both go down the hall first) are taught as two
+unrelated edges: while the robot drives the hall, the belief is split between them and the
+policy's votes for either goal disagree about which edge the robot is on. The refinement makes
+the shared part one edge to a new **junction** (an unnamed location whose one image is the last
+shared view) and the two remainders edges from the junction to the original targets; the belief,
+the policy and the engine then run on the refined graph unchanged.
 
 **Finding** (:func:`find_junctions`). For every pair of edges ``a``, ``b`` leaving one location
 (to different targets) the caller gives the ``(n_a, n_b)`` matrix of the engine's error between
@@ -28,11 +28,15 @@ in a row.
 
 **Applying** (:func:`refine`). A :class:`Junction` names its edges by their first image's
 storage id (image ids never change; edge indices do), so a stored junction applies to the graph
-it was found on, in order after the junctions found before it. Edge ``a`` becomes
-``source -> J`` (its shared images) and ``J -> a.target`` (the rest); edge ``b`` becomes
-``J -> b.target`` (its rest), and its shared images are **mapped**: each stands for the image
-of ``a``'s prefix it was aligned with (the caller adds it to the engine as another appearance
-of that image, as it does with a repeat run's experiences). The junction is appended after the
+it was found on, in order after the junctions found before it. Edge ``a`` becomes ``source ->
+J`` (its shared images but the last) and ``J -> a.target`` (the rest), and the junction place
+gets ``a``'s last shared image as its one image (a place without images would never hold the
+belief: the tracker would pass from the shared edge straight onto whichever remainder looks most
+like the corridor ahead, and the policy would never be asked at the junction; measured in the
+simulated apartment, where the robot then drove on to the wrong target). Edge ``b`` becomes ``J
+-> b.target`` (its rest), and its shared images are **mapped**: each stands for the image of
+``a``'s prefix it was aligned with (the caller adds it to the engine as another appearance of
+that image, as it does with a repeat run's experiences). The junction is appended after the
 places (place indices do not move); the edges keep their order, ``a`` replaced by its two parts
 and ``b`` by its rest. A junction whose edges are not found (the tour changed) is skipped and
 reported. Every taught image is in the refined graph exactly once or mapped onto one that is.
@@ -104,8 +108,8 @@ class JunctionParams:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_error) and self.max_error > 0.0):
             raise ValueError("max_error must be finite and > 0")
-        if self.min_shared < 1 or self.min_remainder < 1 or self.max_skip < 0:
-            raise ValueError("need min_shared >= 1, min_remainder >= 1, max_skip >= 0")
+        if self.min_shared < 2 or self.min_remainder < 1 or self.max_skip < 0:
+            raise ValueError("need min_shared >= 2, min_remainder >= 1, max_skip >= 0")
         if self.max_step < 1 or self.max_stall < 0:
             raise ValueError("need max_step >= 1 and max_stall >= 0")
 
@@ -240,6 +244,34 @@ def shared_prefix(
     return int(mapping[j_end]), j_end, mapping
 
 
+def _prefix_of(
+    a: Edge, b: Edge, error: PairError, params: JunctionParams
+) -> tuple[int, int, IntArray] | None:
+    """:func:`shared_prefix` of two edges, asking ``error`` only for the images it can reach:
+    the first ``n`` images of ``b`` (and the ``max_step * (n - 1) + 1`` of ``a`` an alignment
+    can reach by then), ``n`` doubling while an alignment is still alive at image ``n - 1``.
+    The answer is the one of the whole matrix (each image of ``b`` only depends on those
+    before it)."""
+    ids_a, ids_b = np.asarray(a.image_ids), np.asarray(b.image_ids)
+    n = min(len(ids_b), 32)
+    while True:
+        rows = min(len(ids_a), params.max_step * (n - 1) + 1)
+        err = np.asarray(error(ids_a[:rows], ids_b[:n]), np.float64)
+        if err.shape != (rows, n):
+            raise ValueError(f"error gave {err.shape}, expected ({rows}, {n})")
+        found = shared_prefix(
+            err,
+            params.max_error,
+            max_step=params.max_step,
+            max_stall=params.max_stall,
+            max_skip=params.max_skip,
+        )
+        alive = found is not None and found[1] >= n - 1 - params.max_skip
+        if not alive or n == len(ids_b):
+            return found
+        n = min(len(ids_b), 2 * n)
+
+
 def _candidates(
     graph: TourGraph, error: PairError, params: JunctionParams
 ) -> list[tuple[int, Junction]]:
@@ -252,20 +284,7 @@ def _candidates(
                 a, b = graph.edges[ja], graph.edges[jb]
                 if a.target == b.target:
                     continue  # a re-taught path, not a fork
-                err = np.asarray(
-                    error(np.asarray(a.image_ids), np.asarray(b.image_ids)), np.float64
-                )
-                if err.shape != (a.n_images, b.n_images):
-                    raise ValueError(
-                        f"error gave {err.shape}, expected ({a.n_images}, {b.n_images})"
-                    )
-                found = shared_prefix(
-                    err,
-                    params.max_error,
-                    max_step=params.max_step,
-                    max_stall=params.max_stall,
-                    max_skip=params.max_skip,
-                )
+                found = _prefix_of(a, b, error, params)
                 if found is None:
                     continue
                 i, j, mapping = found
@@ -334,7 +353,8 @@ def refine(graph: TourGraph, junctions: Sequence[Junction], *, first_name: int =
     """``graph`` with ``junctions`` applied in order (module doc).
 
     The refined edges keep the storage id of the taught edge they are part of; junction places
-    have id -1 and no images and are named :func:`junction_name` (``first_name``, then on).
+    have id -1 and one image (the kept edge's last shared one) and are named
+    :func:`junction_name` (``first_name``, then on).
     ``image_pose`` and ``image_entropy`` follow their images; a mapped image's rows leave with
     it. No junction: the very same ``graph`` object.
     """
@@ -355,20 +375,24 @@ def refine(graph: TourGraph, junctions: Sequence[Junction], *, first_name: int =
         a, b = edges[ka_idx], edges[kb_idx]
         if (
             a.source != b.source
-            or junction.keep_shared >= a.n_images
+            or not 2 <= junction.keep_shared < a.n_images
             or junction.other_shared >= b.n_images
         ):
             applied.append(False)
             continue
         j = len(locations)
-        locations.append(Location(junction_name(first_name + len(added)), (), -1, junction=True))
         ka, kb = junction.keep_shared, junction.other_shared
+        view = (a.image_ids[ka - 1],)  # the junction's one image: the last shared view
+        locations.append(Location(junction_name(first_name + len(added)), view, -1, junction=True))
         for k in range(kb):
             mapped[int(b.image_ids[k])] = int(a.image_ids[junction.mapping[k]])
         new_edges: list[Edge] = []
         for k, e in enumerate(edges):
             if k == ka_idx:
-                new_edges += [_slice(e, e.source, j, 0, ka), _slice(e, j, e.target, ka, e.n_images)]
+                new_edges += [
+                    _slice(e, e.source, j, 0, ka - 1),
+                    _slice(e, j, e.target, ka, e.n_images),
+                ]
             elif k == kb_idx:
                 new_edges.append(_slice(e, j, e.target, kb, e.n_images))
             else:

@@ -109,7 +109,7 @@ def test_find_apply_refuse_and_undo(api: Api, shared_data: Path) -> None:
     assert [x["id"] for x in listed] == [change["id"]] and listed[0]["kind"] == "junction"
     refined = services.navigation.runtime(tour)
     g = refined.graph
-    assert g.n_locations == 4 and g.locations[3].junction and g.locations[3].image_ids == ()
+    assert g.n_locations == 4 and g.locations[3].junction and len(g.locations[3].image_ids) == 1
     assert g.n_edges == taught.n_edges + 1
     assert g.n_images == taught.n_images - found["other_shared"]
     assert refined.index.n_images == taught.n_images  # the mapped images stay, as appearances
