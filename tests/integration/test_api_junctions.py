@@ -2,14 +2,22 @@
 frames: two paths leave 'entry' down the same corridor (the corridor's two traversals, ref and
 query) and part; the search finds one junction, a dry run changes nothing, bad input is refused
 with the database unchanged, and undoing the junction restores the graph and the likelihoods
-bit for bit."""
+bit for bit.
+
+The corridor's two traversals differ more than two simulated runs do (the default
+``max_error`` is chosen in the simulator): the server runs with the deployment setting
+``learning.junctions.max_error=0.665``, which separates this corridor from elsewhere."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from conftest import Api
+import pytest
+from conftest import ADMIN_TOKEN, Api
+from fastapi.testclient import TestClient
+from pydantic import SecretStr
 from test_api_navigation import JPEG
 
 from server.imaging import decode_jpeg
@@ -17,6 +25,22 @@ from server.services.container import Services
 from server.vision import extract
 
 SHARED = 45  # images of the corridor both paths drive before they part
+
+
+@pytest.fixture()
+def api(tmp_path: Path) -> Iterator[Api]:
+    from server.app import create_app
+    from server.config import Settings
+
+    db_path = tmp_path / "api.sqlite"
+    settings = Settings(
+        db=db_path,
+        admin_token=SecretStr(ADMIN_TOKEN),
+        dashboard_port=None,
+        navigation={"learning.junctions.max_error": 0.665},
+    )
+    with TestClient(create_app(settings)) as client:
+        yield Api(client, db_path, {"Authorization": f"Bearer {ADMIN_TOKEN}"})
 
 
 def teach_fork(api: Api, robot: dict[str, str], data: Path) -> int:

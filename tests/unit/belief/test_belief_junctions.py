@@ -95,13 +95,13 @@ def coded_edge(source: int, target: int, codes: list[int], where: dict[int, int]
 
 
 def similarity_of(where: dict[int, int]) -> PairError:
-    """The error of two images: 0.5 when they show the same place (equal codes), else 0.8 (the
-    default threshold is 0.665)."""
+    """The error of two images: 0.3 when they show the same place (equal codes), else 0.8 (the
+    default threshold is 0.45)."""
 
     def err(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ca = np.array([where[int(i)] for i in a])
         cb = np.array([where[int(i)] for i in b])
-        return np.where(ca[:, None] == cb[None, :], 0.5, 0.8)
+        return np.where(ca[:, None] == cb[None, :], 0.3, 0.8)
 
     return err
 
@@ -166,6 +166,8 @@ def test_no_junction_for_a_short_share_or_a_path_that_does_not_go_on() -> None:
     p = JunctionParams(min_shared=8, min_remainder=3)
     graph, where = fork(7, 10, 10)  # shares 7 < 8
     assert find_junctions(graph, similarity_of(where), p) == []
+    graph, where = fork(8, 10, 10)  # 8 images, but 0.875 m < 1 m
+    assert find_junctions(graph, similarity_of(where), p) == []
     graph, where = fork(10, 10, 2)  # b goes on for 2 < 3
     assert find_junctions(graph, similarity_of(where), p) == []
 
@@ -223,7 +225,7 @@ def test_refinement_keeps_every_image_once_or_mapped(
         image_pose=np.column_stack([ids, -ids, ids * 0.5]).astype(np.float64),
         image_entropy=ids.astype(np.float64) / 7,
     )
-    p = JunctionParams(min_shared=2, min_remainder=1)  # the smallest allowed
+    p = JunctionParams(min_shared=2, min_shared_m=0.0, min_remainder=1)  # the smallest
     found = find_junctions(graph, similarity_of(where), p)
     r = refine(graph, found)
     g = r.graph
@@ -306,10 +308,10 @@ def test_asking_for_a_growing_block_gives_the_whole_matrix_answer(
     """The search asks the engine for the first 32, 64, ... images only while an alignment is
     alive; the answer is the one of the whole matrix."""
     rng = np.random.default_rng(seed)
-    error = 0.7 + 0.2 * rng.random((n_a, n_b))  # no match but the planted ones
+    error = 0.6 + 0.2 * rng.random((n_a, n_b))  # no match but the planted ones
     i = 0
     for j in range(min(shared, n_b)):  # a matching alignment along the first `shared` images
-        error[i, j] = 0.5
+        error[i, j] = 0.3
         i = min(n_a - 1, i + int(rng.integers(0, 3)))
     a, b = edge(0, 1, n_a), edge(0, 2, n_b)
     full = {
