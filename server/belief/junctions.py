@@ -92,6 +92,12 @@ class JunctionParams:
       but not one place of the corridor from another.
     * ``min_shared`` (8 images), ``min_shared_m`` (1.0 m by the taught speeds): both edges
       must share at least this much; a shorter common start is only the place itself.
+    * ``split_back_m`` (0.5 m by the taught speeds): the junction is put this far before the
+      last shared image, so both remainders start with views a robot arriving at the junction
+      has in front of it. At the last shared image itself the remainders' first views are
+      already turned away: the robot stopped at the junction and spun to find its edge, and
+      in the middle of a corridor a spin met views of other places (simulated apartment: it
+      declared arrival 4.8 m from the goal).
     * ``min_remainder`` (3 images): both edges must go on for at least this many images after
       the split (else one path is the other one's prefix, not a fork).
     * ``max_step`` (2), ``max_stall`` (2): the alignment advances 0 to ``max_step`` images of
@@ -104,6 +110,7 @@ class JunctionParams:
     max_error: float = 0.45
     min_shared: int = 8
     min_shared_m: float = 1.0
+    split_back_m: float = 0.5
     min_remainder: int = 3
     max_step: int = 2
     max_stall: int = 2
@@ -114,8 +121,11 @@ class JunctionParams:
             raise ValueError("max_error must be finite and > 0")
         if self.min_shared < 2 or self.min_remainder < 1 or self.max_skip < 0:
             raise ValueError("need min_shared >= 2, min_remainder >= 1, max_skip >= 0")
-        if not (math.isfinite(self.min_shared_m) and self.min_shared_m >= 0.0):
-            raise ValueError("min_shared_m must be finite and >= 0")
+        if not all(math.isfinite(x) and x >= 0.0 for x in (self.min_shared_m, self.split_back_m)):
+            raise ValueError("min_shared_m and split_back_m must be finite and >= 0")
+        if 0.0 < self.min_shared_m <= self.split_back_m:
+            # the remainders share split_back_m of views: searched again, they must not count
+            raise ValueError("split_back_m must be less than min_shared_m")
         if self.max_step < 1 or self.max_stall < 0:
             raise ValueError("need max_step >= 1 and max_stall >= 0")
 
@@ -297,9 +307,18 @@ def _candidates(
                 ka, kb = i + 1, j + 1
                 if min(ka, kb) < params.min_shared:
                     continue
-                metres = min(a.metres_along()[ka - 1], b.metres_along()[kb - 1])
+                along = a.metres_along()
+                metres = min(along[ka - 1], b.metres_along()[kb - 1])
                 if metres < params.min_shared_m:
                     continue
+                # the junction goes split_back_m before the paths part: its remainders start
+                # with views the robot arriving there still has in front of it
+                ka = max(
+                    2, int(np.searchsorted(along, along[ka - 1] - params.split_back_m, "right"))
+                )
+                ka = min(ka, i + 1)
+                kb = int(np.searchsorted(mapping, ka - 1, "right"))
+                mapping = mapping[:kb]
                 if min(a.n_images - ka, b.n_images - kb) < params.min_remainder:
                     continue
                 junction = Junction(

@@ -109,7 +109,10 @@ def test_find_apply_refuse_and_undo(api: Api, shared_data: Path) -> None:
         "office",
         "garden",
     )
-    assert abs(found["kept_shared"] - SHARED) <= 6 and abs(found["other_shared"] - SHARED) <= 6
+    # the junction goes 0.5 m (17 images at 0.03 m each) before the paths part
+    back = 17
+    assert abs(found["kept_shared"] - (SHARED - back)) <= 6, found
+    assert abs(found["other_shared"] - (SHARED - back)) <= 6, found
     assert api.dump() == dump
 
     # bad input: a clear 4xx, nothing changed

@@ -86,6 +86,8 @@ def test_shared_prefix_equals_naive_reference(
 
 # --- synthetic tours: images carry a "where" code; equal codes look alike --------------------
 
+P0 = JunctionParams(split_back_m=0.0)  # the junction at the last shared image
+
 
 def coded_edge(source: int, target: int, codes: list[int], where: dict[int, int]) -> Edge:
     e = edge(source, target, len(codes))
@@ -121,7 +123,7 @@ def fork(shared: int, rest_a: int, rest_b: int, *, slow_b: bool = False) -> tupl
 
 def test_a_fork_becomes_one_junction() -> None:
     graph, where = fork(12, 10, 8)
-    found = find_junctions(graph, similarity_of(where))
+    found = find_junctions(graph, similarity_of(where), P0)
     assert len(found) == 1
     j = found[0]
     assert (j.keep_first, j.other_first) == (
@@ -147,9 +149,21 @@ def test_a_fork_becomes_one_junction() -> None:
     )
 
 
+def test_the_junction_goes_split_back_m_before_the_paths_part() -> None:
+    """0.5 m at 0.125 m per image: 4 images back; both remainders start with shared views."""
+    graph, where = fork(12, 10, 8)
+    (j,) = find_junctions(graph, similarity_of(where))
+    assert (j.keep_shared, j.other_shared) == (8, 8) and j.mapping == tuple(range(8))
+    g = refine(graph, [j]).graph
+    to_a, to_b = g.edges[1], g.edges[2]
+    assert [where[i] for i in to_a.image_ids[:4]] == [8, 9, 10, 11]
+    assert [where[i] for i in to_b.image_ids[:4]] == [8, 9, 10, 11]
+    assert where[g.locations[3].image_ids[0]] == 7
+
+
 def test_a_slower_teaching_run_still_shares_its_prefix() -> None:
     graph, where = fork(10, 6, 6, slow_b=True)
-    (j,) = find_junctions(graph, similarity_of(where))
+    (j,) = find_junctions(graph, similarity_of(where), P0)
     assert (j.keep_shared, j.other_shared) == (10, 20)
     assert j.mapping == tuple(k // 2 for k in range(20))
 
@@ -159,11 +173,11 @@ def test_no_junction_when_paths_differ_from_the_first_image() -> None:
     a = coded_edge(0, 1, list(range(20)), where)
     b = coded_edge(0, 2, [999, *list(range(1, 20))], where)
     graph = TourGraph((location("S"), location("A"), location("B")), (a, b))
-    assert find_junctions(graph, similarity_of(where)) == []
+    assert find_junctions(graph, similarity_of(where), P0) == []
 
 
 def test_no_junction_for_a_short_share_or_a_path_that_does_not_go_on() -> None:
-    p = JunctionParams(min_shared=8, min_remainder=3)
+    p = JunctionParams(min_shared=8, min_remainder=3, split_back_m=0.0)
     graph, where = fork(7, 10, 10)  # shares 7 < 8
     assert find_junctions(graph, similarity_of(where), p) == []
     graph, where = fork(8, 10, 10)  # 8 images, but 0.875 m < 1 m
@@ -179,7 +193,7 @@ def test_three_paths_down_one_corridor_give_two_junctions_in_a_row() -> None:
     b = coded_edge(0, 2, [*list(range(20)), 200, 201, 202, 203], where)
     c = coded_edge(0, 3, [*list(range(10)), 300, 301, 302, 303], where)
     graph = TourGraph(locs, (a, b, c))
-    found = find_junctions(graph, similarity_of(where))
+    found = find_junctions(graph, similarity_of(where), P0)
     assert [(j.keep_shared, j.other_shared) for j in found] == [(20, 20), (10, 10)]
     g = refine(graph, found).graph
     j1, j2 = 4, 5
@@ -191,7 +205,7 @@ def test_three_paths_down_one_corridor_give_two_junctions_in_a_row() -> None:
 def test_a_junction_whose_edges_are_gone_is_skipped() -> None:
     graph, where = fork(12, 10, 8)
     stale = Junction(-5, graph.edges[1].image_ids[0], 12, 12, tuple(range(12)))
-    (good,) = find_junctions(graph, similarity_of(where))
+    (good,) = find_junctions(graph, similarity_of(where), P0)
     r = refine(graph, [stale, good])
     assert r.applied == (False, True)
     assert r.graph.n_locations == 4
@@ -225,7 +239,7 @@ def test_refinement_keeps_every_image_once_or_mapped(
         image_pose=np.column_stack([ids, -ids, ids * 0.5]).astype(np.float64),
         image_entropy=ids.astype(np.float64) / 7,
     )
-    p = JunctionParams(min_shared=2, min_shared_m=0.0, min_remainder=1)  # the smallest
+    p = JunctionParams(min_shared=2, min_shared_m=0.0, min_remainder=1, split_back_m=0.0)
     found = find_junctions(graph, similarity_of(where), p)
     r = refine(graph, found)
     g = r.graph
@@ -265,7 +279,7 @@ def test_tracker_and_voting_policy_drive_through_a_junction() -> None:
     remainder; the policy says Navigate on the shared edge, picks B's remainder at the junction
     (not A's), and the goal says DoNothing."""
     graph, where = fork(12, 10, 8)
-    g = refine(graph, find_junctions(graph, similarity_of(where))).graph
+    g = refine(graph, find_junctions(graph, similarity_of(where), P0)).graph
     model = BeliefModel(g)
     goal = 2
     costs = cost_to_goal(g, goal)
@@ -293,7 +307,14 @@ def test_tracker_and_voting_policy_drive_through_a_junction() -> None:
 
 
 @pytest.mark.parametrize(
-    "bad", [dict(max_error=0.0), dict(min_shared=0), dict(max_skip=-1), dict(max_step=0)]
+    "bad",
+    [
+        dict(max_error=0.0),
+        dict(min_shared=0),
+        dict(max_skip=-1),
+        dict(max_step=0),
+        dict(split_back_m=1.0),
+    ],
 )
 def test_params_are_checked(bad: dict) -> None:
     with pytest.raises(ValueError):
