@@ -20,6 +20,7 @@ from fastapi.testclient import TestClient
 from pydantic import SecretStr
 from test_api_navigation import JPEG
 
+from server.belief.junctions import Junction
 from server.imaging import decode_jpeg
 from server.services.container import Services
 from server.vision import extract
@@ -164,3 +165,84 @@ def test_find_apply_refuse_and_undo(api: Api, shared_data: Path) -> None:
     np.testing.assert_array_equal(after_rt.index.weights, before_rt.index.weights)
     for f, lik in zip(probes, before, strict=True):
         np.testing.assert_array_equal(after_rt.observe(f)[1], lik)
+
+
+def blocks(seed: int) -> bytes:
+    """A 64x48 JPEG of 8x6 random colour blocks: one seed, one look."""
+    from server.imaging import encode_jpeg
+
+    rng = np.random.default_rng(seed)
+    grid = rng.integers(0, 255, (6, 8, 3), dtype=np.uint8)
+    return encode_jpeg(np.kron(grid, np.ones((8, 8, 1), dtype=np.uint8)))
+
+
+def test_two_junctions_in_a_row(api: Api) -> None:
+    """S -> A and S -> B share 20 images, S -> C the first 10 of them: two junctions in a row,
+    each removable on its own; one stored on the first one's remainders makes removing the
+    first a 409 that changes nothing."""
+    c = api.client
+    robot = api.register()
+    tour = c.post("/tours", json={"name": "three"}, headers=robot).json()["id"]
+    assert c.post("/robots/rover/teach/start", json={"tour": tour}, headers=robot).is_success
+    t = [0.0]
+
+    def send(url: str, seed: int) -> None:
+        t[0] += 0.1
+        r = c.post(
+            url,
+            params={"timestamp": t[0], "v": 1.5},  # 0.15 m per image
+            content=blocks(seed),
+            headers={**robot, **JPEG},
+        )
+        assert r.status_code == 200, r.text
+
+    def place(name: str, spin: int | None) -> None:
+        r = c.post("/robots/rover/teach/locations", json={"name": name}, headers=robot)
+        assert r.status_code == 200, r.text
+        if spin is not None:
+            send("/robots/rover/teach/spin", spin)
+
+    place("S", 1)
+    for target, shared, own in (("A", 20, 100), ("B", 20, 200), ("C", 10, 300)):
+        for k in range(shared):
+            send("/robots/rover/frames", 1000 + k)
+        for k in range(10):
+            send("/robots/rover/frames", own + k)
+        place(target, own + 50)
+        for k in range(5):
+            send("/robots/rover/frames", own + 60 + k)
+        place("S", None)
+    assert c.post("/robots/rover/teach/finish", headers=robot).status_code == 200
+
+    r = c.post(f"/tours/{tour}/junctions", json={}, headers=robot)
+    assert r.status_code == 200, r.text
+    first, second = r.json()["junctions"]
+    assert (first["kept_target"], first["other_target"]) == ("A", "B")
+    assert (second["kept_target"], second["other_target"]) == ("(junction 1)", "C")
+    one, two = (x["change"] for x in (first, second))
+    services: Services = c.app.state.services  # type: ignore[attr-defined]
+    assert sum(loc.junction for loc in services.navigation.runtime(tour).graph.locations) == 2
+    # a junction stored on the first one's remainders depends on it: the first cannot go
+    g = services.navigation.runtime(tour).graph
+    j1 = next(k for k, loc in enumerate(g.locations) if loc.name == "(junction 1)")
+    rest_a, rest_b = (e for e in g.edges if e.source == j1)
+    later = services.repo.add_junction_change(
+        tour,
+        Junction(rest_a.image_ids[0], rest_b.image_ids[0], 3, 3, (0, 1, 2)),
+        source="test",
+        summary="on the remainders of junction 1",
+        now=0.0,
+    )
+    services.navigation.tour_changed(tour)
+    dump = api.dump()
+    r = c.delete(f"/tours/{tour}/learned/{one}", headers=robot)
+    assert r.status_code == 409 and str(later) in r.json()["detail"], r.text
+    assert api.dump() == dump
+    assert c.delete(f"/tours/{tour}/learned/{later}", headers=robot).status_code == 204
+    # the second junction's edges start where the taught ones do: it still applies alone
+    assert c.delete(f"/tours/{tour}/learned/{one}", headers=robot).status_code == 204
+    assert [x["id"] for x in c.get(f"/tours/{tour}/learned", headers=robot).json()] == [two]
+    alone = services.navigation.runtime(tour).graph
+    assert [loc.name for loc in alone.locations if loc.junction] == ["(junction 1)"]
+    assert c.delete(f"/tours/{tour}/learned/{two}", headers=robot).status_code == 204
+    assert not any(loc.junction for loc in services.navigation.runtime(tour).graph.locations)
