@@ -388,3 +388,50 @@ def test_learned_changes_are_listed_pruned_and_removed(repo: Repo) -> None:
         repo.remove_learned_change(other, two)
     repo.remove_learned_change(tour, two)
     assert repo.experiences(tour) == [] and len(repo.learned_changes(tour)) == 2
+
+
+def test_a_schema_5_database_upgrades_losing_nothing_and_keeps_junctions(tmp_path: Path) -> None:
+    """Schema 5 -> newest (7: junctions; the CHECK on the change's kind goes): every learned
+    change and experience kept, with their ids; a junction round-trips and goes with its
+    change, as the experiences do."""
+    import sqlite_utils
+
+    from server.belief.junctions import Junction
+
+    path = tmp_path / "five.sqlite"
+    conn = sqlite3.connect(path, isolation_level=None)
+    conn.execute("PRAGMA foreign_keys = ON")
+    assert migrate(sqlite_utils.Database(conn), upto=5) == 5
+    x = conn.execute
+    x("INSERT INTO tours VALUES (7, 1, 'home', 3.0, NULL, NULL, NULL)")
+    x("INSERT INTO locations VALUES (1, 7, 'hall', 4.0)")
+    for k in (1, 2):
+        x(
+            "INSERT INTO images (id, tour_id, location_id, seq, timestamp, v, w, width, height, "
+            "jpeg) VALUES (?, 7, 1, ?, 0.0, 0.0, 0.0, 64, 48, ?)",
+            (k, k, make_jpeg(k)),
+        )
+    x("INSERT INTO learned_changes VALUES (4, 7, 'experience', 1.0, 'run', 's', NULL)")
+    x("INSERT INTO learned_changes VALUES (5, 7, 'transitions', 2.0, 'run', 'c', x'00')")
+    x("INSERT INTO experiences VALUES (9, 4, 1, x'0102', 1.0)")
+    before = _rows(conn, ("learned_changes", "experiences", "images", "tours"))
+    conn.close()
+    repo = Repo(path)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 7
+        assert _rows(repo.db.conn, before) == before
+        assert repo.integrity_ok()
+        junction = Junction(1, 2, 3, 2, (0, 2))
+        made = repo.add_junction_change(7, junction, source="search", summary="j", now=3.0)
+        assert made == 6 and repo.junctions(7) == [(6, junction)]
+        assert [r.kind for r in repo.learned_changes(7)] == [
+            "experience",
+            "transitions",
+            "junction",
+        ]
+        repo.remove_learned_change(7, 4)
+        repo.remove_learned_change(7, 6)
+        assert repo.experiences(7) == [] and repo.junctions(7) == []
+        assert repo.db.conn.execute("SELECT count(*) FROM junctions").fetchone()[0] == 0
+    finally:
+        repo.close()
