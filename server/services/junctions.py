@@ -39,18 +39,24 @@ class EngineErrors:
     def __init__(self, rt: TourRuntime) -> None:
         self.rt = rt
         self.canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
-        self.pairs = 0
+        self.pairs = 0  # image pairs the engine scored (each once: the search asks again)
+        self._known: dict[int, dict[int, float]] = {}  # query image -> image -> error
 
     def one_way(self, ids_a: npt.NDArray[np.int64], ids_b: npt.NDArray[np.int64]) -> FloatArray:
         """``(len(ids_a), len(ids_b))`` error of each image of ``a`` as the query."""
         index, p = self.rt.index, self.rt.index.params
-        cb = np.array([self.canonical[int(i)] for i in ids_b], dtype=np.int64)
-        out = np.empty((len(ids_a), len(cb)))
+        out = np.empty((len(ids_a), len(ids_b)))
         for r, image_id in enumerate(ids_a):
-            q = self.rt.features[self.canonical[int(image_id)]]
-            d = index.signature_distances(q)[cb].astype(np.float64)
-            out[r] = p.feature_weight * index.feature_errors(q, cb) + p.signature_weight * d
-        self.pairs += out.size
+            known = self._known.setdefault(int(image_id), {})
+            missing = [int(i) for i in ids_b if int(i) not in known]
+            if missing:
+                q = self.rt.features[self.canonical[int(image_id)]]
+                cb = np.array([self.canonical[i] for i in missing], dtype=np.int64)
+                d = index.signature_distances(q)[cb].astype(np.float64)
+                e = p.feature_weight * index.feature_errors(q, cb) + p.signature_weight * d
+                known.update(zip(missing, e.tolist(), strict=True))
+                self.pairs += len(missing)
+            out[r] = [known[int(i)] for i in ids_b]
         return out
 
     def __call__(self, ids_a: npt.NDArray[np.int64], ids_b: npt.NDArray[np.int64]) -> FloatArray:
