@@ -270,12 +270,19 @@ def junctions(db: sqlite_utils.Database) -> None:
     Stand-in for branch i25-ask's migration 6, which rebuilds ``learned_changes`` without the
     CHECK on ``kind``: while that CHECK is there (this branch alone), the table is rebuilt the
     same way (portable statements: create, copy, drop, rename, with ``experiences``, which
-    references it). Once migration 6 has run, the CHECK is gone and this part does nothing."""
-    sql = db.execute(
-        "SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'learned_changes'"
-    ).fetchone()
-    if sql is not None and "CHECK (kind IN" in sql[0]:
-        _learned_changes_without_kind_check(db)
+    references it; on PostgreSQL, where main's store runs these migrations too, the constraint
+    is dropped in place). Once migration 6 has run, the CHECK is gone and this part does
+    nothing."""
+    if getattr(db, "dialect", "sqlite") == "postgresql":  # main's PostgreSQL store
+        db.execute(
+            "ALTER TABLE learned_changes DROP CONSTRAINT IF EXISTS learned_changes_kind_check"
+        )
+    else:
+        sql = db.execute(
+            "SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'learned_changes'"
+        ).fetchone()
+        if sql is not None and "CHECK (kind IN" in sql[0]:
+            _learned_changes_without_kind_check(db)
     db.execute(
         """
         CREATE TABLE junctions (
