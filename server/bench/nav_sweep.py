@@ -81,6 +81,7 @@ class SweepConfig:
     record: str | None = None  # folder for the recordings kept (--record)
     record_all: bool = False  # keep every trial's recording, not only the failures'
     experience_runs: int = 0  # runs per plan and condition that add experiences first
+    junctions: bool = False  # apply the tour's junctions after teaching (--junctions)
 
 
 def recording_key(plan_sha256: str, seed: int) -> str:
@@ -129,6 +130,7 @@ class Worker:
         self._tours: dict[int, Any] = {}
         self._worlds: dict[tuple[int, str], Any] = {}
         self._experienced: dict[tuple[int, str], int] = {}  # images added per plan, condition
+        self._junctions: dict[int, int] = {}  # junctions applied per plan (--junctions)
         self.teach_s = 0.0
 
     def close(self) -> None:
@@ -158,6 +160,12 @@ class Worker:
                 # first goto: here, with time to spare on a loaded machine, not in a trial's
                 client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
                 client.stop(name)
+                if self.config.junctions:  # docs/learning.md, "Junctions"
+                    found = client.junctions(graph.id, timeout_s=PREPARE_S)
+                    self._junctions[plan] = len(found.changes)
+                    # prepare the refined tour too, before the first trial
+                    client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
+                    client.stop(name)
                 self._tours[plan] = graph
             self.teach_s += time.perf_counter() - t0
             if self.config.record is not None:
@@ -218,6 +226,7 @@ class Worker:
             "condition": spec.condition,
             "trial": spec.trial,
             "experiences_added": added,
+            "junctions": self._junctions.get(spec.plan, 0),
             **result.row(),
             **evidence,
             "wall_s": time.perf_counter() - t0,

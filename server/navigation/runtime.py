@@ -41,6 +41,11 @@ class TourRuntime:
         self.graph = graph
         self.params = params
         self.version = version
+        # a tour refined by junctions (server.belief.junctions): the taught graph's image count
+        # (stored weights and entropies are the taught images') and the taught images the
+        # refinement mapped onto others (image id -> the image id it stands for)
+        self.taught_images = graph.n_images
+        self.mapped: dict[int, int] = {}
         self.features = tuple(features)
         self.index = TourIndex(params.engine)
         if graph.n_images:

@@ -12,6 +12,7 @@ from server.navigation import NavigationParams
 from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
 from server.services.households import HouseholdService, Identities, LoginParams
+from server.services.junctions import JunctionService
 from server.services.learning import LearningService
 from server.services.navigation import NavigationService
 from server.services.teaching import TeachingService
@@ -32,6 +33,7 @@ class Services:
     navigation: NavigationService
     recordings: Recorder
     learning: LearningService
+    junctions: JunctionService
 
     @classmethod
     def build(
@@ -85,6 +87,7 @@ class Services:
             navigation=nav,
             recordings=recorder,
             learning=learning,
+            junctions=JunctionService(repo, nav, nav.params.learning.junctions),
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:

@@ -45,7 +45,11 @@ def change_public(row: LearnedChangeRow) -> schemas.LearnedChange:
     return schemas.LearnedChange(
         id=row.id,
         tour=row.tour_id,
-        kind="transitions" if row.kind == "transitions" else "experience",
+        kind="junction"
+        if row.kind == "junction"
+        else "transitions"
+        if row.kind == "transitions"
+        else "experience",
         created_at=row.created_at,
         source=row.source,
         summary=row.summary,
@@ -181,8 +185,19 @@ class LearningService(NavigationObserver):
         return [change_public(r) for r in self.repo.learned_changes(tour_id)]
 
     def remove(self, tour_id: int, change_id: int, household: int) -> None:
+        """Delete one change (404: no such change of the household's tour; 409: a junction
+        that later junctions were found on, :func:`junction_dependents`)."""
+        from server.services.junctions import junction_dependents
+
         self.repo.tour(tour_id, household)
-        self.repo.remove_learned_change(tour_id, change_id)
+        with self.repo.transaction():
+            needed = junction_dependents(self.repo, tour_id, change_id)
+            if needed:
+                raise Conflict(
+                    f"junction {change_id} has edges that the later junction(s) "
+                    f"{', '.join(map(str, needed))} split; remove those first"
+                )
+            self.repo.remove_learned_change(tour_id, change_id)
         self.on_change(tour_id)
 
 

@@ -17,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
+from server.belief.junctions import refine
 from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary
@@ -223,48 +224,70 @@ class NavigationService:
         return self._built_from.get(tour_id) == self._changes.get(tour_id, 0)
 
     def _build(self, tour_id: int, *, version: int) -> TourRuntime:
-        graph = self.repo.graph(tour_id)
-        if graph.n_locations == 0:
+        taught = self.repo.graph(tour_id)
+        if taught.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
+        refinement = refine(taught, [j for _, j in self.repo.junctions(tour_id)])
+        graph = refinement.graph
         scale = learned_scale(self.repo, tour_id, graph.n_edges)
         rt = TourRuntime(
-            graph, self._features(graph), self.params, version=version, advance_scale=scale
+            graph,
+            self._features([int(i) for i in graph.image_ids]),
+            self.params,
+            version=version,
+            advance_scale=scale,
         )
+        rt.taught_images = taught.n_images
+        rt.mapped = refinement.mapped
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
         self._distinctiveness(tour_id, rt)
+        self._mapped(rt)
         self._experiences(tour_id, rt)
         return rt
 
+    def _mapped(self, rt: TourRuntime) -> None:
+        """The images a junction mapped (docs/learning.md, "Junctions") into the index as
+        more appearances of the images they stand for."""
+        if not rt.mapped:
+            return
+        canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
+        ids = sorted(rt.mapped)
+        feats = self._features(ids)
+        rt.add_experiences([(canonical[rt.mapped[i]], f) for i, f in zip(ids, feats, strict=True)])
+
     def _experiences(self, tour_id: int, rt: TourRuntime) -> None:
-        """The tour's stored experiences (docs/learning.md) into its index."""
+        """The tour's stored experiences (docs/learning.md) into its index (an experience of
+        an image a junction mapped: of the image it stands for)."""
         canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
         items = []
         for image_id, blob in self.repo.experiences(tour_id):
             feats = _stored_features(blob, self.params.features)
-            if feats is not None and image_id in canonical:
-                items.append((canonical[image_id], feats))
+            k = canonical.get(rt.mapped.get(image_id, image_id))
+            if feats is not None and k is not None:
+                items.append((k, feats))
         rt.add_experiences(items)
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else
         computed now (one engine query per sampled image) and stored; computed anyway when
-        disambiguation needs the views' similarity profiles."""
+        disambiguation needs the views' similarity profiles. A tour refined by junctions uses
+        the taught images' entropies and stores none of its own."""
         graph = rt.graph
-        stored = graph.has_entropy and self.repo.entropy_images(tour_id) == graph.n_images
+        stored = graph.has_entropy and self.repo.entropy_images(tour_id) == rt.taught_images
         if stored and not self.params.ambiguity.disambiguate:
             return
         found = rt.distinctiveness()
         rt.attach_distinctiveness(found.entropy, found)
-        if not stored:
+        if not stored and not rt.mapped:
             ids = [int(i) for i in graph.image_ids]
             self.repo.set_entropies(tour_id, list(zip(ids, found.entropy.tolist(), strict=True)))
 
-    def _features(self, graph: TourGraph) -> list[ImageFeatures]:
-        """Features of every image of ``graph`` in canonical order: stored ones are reused,
+    def _features(self, image_ids: list[int]) -> list[ImageFeatures]:
+        """Features of the images ``image_ids``, in that order: stored ones are reused,
         missing ones (or ones extracted with other parameters) are extracted and stored."""
-        ids = [int(i) for i in graph.image_ids]
+        ids = image_ids
         stored = self.repo.features(ids)
         out: list[ImageFeatures] = []
         fresh: list[tuple[int, bytes]] = []
@@ -284,11 +307,12 @@ class NavigationService:
         """The tour's signature weights: stored when learned on this very tour, else learned
         now (the engine's documented defaults for tours too small to learn from) and stored."""
         blob, n_images = self.repo.tour_weights(tour_id)
-        if blob is not None and n_images == rt.graph.n_images:
+        if blob is not None and n_images == rt.taught_images:
             return np.frombuffer(blob, dtype=np.float32).astype(np.float64)
-        weights = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float64)
-        self.repo.set_tour_weights(tour_id, weights.astype(np.float32).tobytes(), rt.graph.n_images)
-        return weights
+        stored = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float32)
+        self.repo.set_tour_weights(tour_id, stored.tobytes(), rt.taught_images)
+        # as stored: the first build answers bit for bit as every later one
+        return stored.astype(np.float64)
 
     # --- sessions -------------------------------------------------------------------------
 

@@ -292,6 +292,86 @@ def learned_changes(db: Any) -> None:
     db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
 
 
+@migration(7, rebuilds=True)
+def junctions(db: Any) -> None:
+    """Junctions learned from shared path prefixes (issue 25 part 2, docs/learning.md): a
+    learned change of kind 'junction' refines the tour's graph when its runtime is built; the
+    taught places, edges and images stay as they are. ``junctions``: one row per change, the
+    edges it splits named by their first image (``keep_image_id``: the edge whose shared images
+    are kept, ``other_image_id``: the edge whose shared images are mapped onto them), how many
+    images of each are shared and ``mapping`` (int32 ``(other_shared,)``: the index among the
+    kept shared images each mapped image stands for).
+
+    Stand-in for branch i25-ask's migration 6, which rebuilds ``learned_changes`` without the
+    CHECK on ``kind``: while that CHECK is there (this branch alone), the table is rebuilt the
+    same way (portable statements: create, copy, drop, rename, with ``experiences``, which
+    references it; on PostgreSQL, where main's store runs these migrations too, the constraint
+    is dropped in place). Once migration 6 has run, the CHECK is gone and this part does
+    nothing."""
+    if getattr(db, "dialect", "sqlite") == "postgresql":  # main's PostgreSQL store
+        db.execute(
+            "ALTER TABLE learned_changes DROP CONSTRAINT IF EXISTS learned_changes_kind_check"
+        )
+    else:
+        sql = db.execute(
+            "SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'learned_changes'"
+        ).fetchone()
+        if sql is not None and "CHECK (kind IN" in sql[0]:
+            _learned_changes_without_kind_check(db)
+    db.execute(
+        """
+        CREATE TABLE junctions (
+            id INTEGER PRIMARY KEY,
+            change_id INTEGER NOT NULL REFERENCES learned_changes(id) ON DELETE CASCADE,
+            keep_image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
+            other_image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
+            keep_shared INTEGER NOT NULL,      -- images of the kept edge before the junction
+            other_shared INTEGER NOT NULL,     -- images of the other edge before the junction
+            mapping BLOB NOT NULL              -- int32 (other_shared,)
+        )"""
+    )
+    db.execute("CREATE INDEX junctions_change ON junctions(change_id)")
+
+
+def _learned_changes_without_kind_check(db: Any) -> None:
+    db.execute(
+        """
+        CREATE TABLE learned_changes_v7 (
+            id INTEGER PRIMARY KEY,
+            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
+            kind TEXT NOT NULL,                -- repo.LEARNED_KINDS
+            created_at REAL NOT NULL,
+            source TEXT NOT NULL,
+            summary TEXT NOT NULL,
+            counts BLOB
+        )"""
+    )
+    db.execute(
+        "INSERT INTO learned_changes_v7 (id, tour_id, kind, created_at, source, summary, counts) "
+        "SELECT id, tour_id, kind, created_at, source, summary, counts FROM learned_changes"
+    )
+    db.execute(
+        """
+        CREATE TABLE experiences_v7 (
+            id INTEGER PRIMARY KEY,
+            change_id INTEGER NOT NULL REFERENCES learned_changes_v7(id) ON DELETE CASCADE,
+            image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
+            features BLOB NOT NULL,
+            created_at REAL NOT NULL
+        )"""
+    )
+    db.execute(
+        "INSERT INTO experiences_v7 (id, change_id, image_id, features, created_at) "
+        "SELECT id, change_id, image_id, features, created_at FROM experiences"
+    )
+    db.execute("DROP TABLE experiences")
+    db.execute("DROP TABLE learned_changes")
+    db.execute("ALTER TABLE learned_changes_v7 RENAME TO learned_changes")
+    db.execute("ALTER TABLE experiences_v7 RENAME TO experiences")
+    db.execute("CREATE INDEX learned_changes_tour ON learned_changes(tour_id)")
+    db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
+
+
 def current_version(db: Any) -> int:
     if "schema_migrations" not in db.table_names():
         return 0

@@ -498,3 +498,56 @@ def test_a_write_waits_for_another_processs_write_then_is_told_busy(store: Path 
     finally:
         holder.close()
         repo.close()
+
+
+def test_a_schema_5_database_upgrades_losing_nothing_and_keeps_junctions(
+    store: Path | str,
+) -> None:
+    """Schema 5 -> newest (7: junctions; the CHECK on the change's kind goes): every learned
+    change and experience kept, with their ids; a junction round-trips and goes with its
+    change, as the experiences do."""
+    from server.belief.junctions import Junction
+
+    db = _old(store, 5)
+    x = db.execute
+    x("INSERT INTO households (id, name, password_hash, created_at) VALUES (2, 'flat', 'ah', 1.0)")
+    x("INSERT INTO tours (id, household_id, name, created_at) VALUES (7, 2, 'home', 3.0)")
+    x("INSERT INTO locations (id, tour_id, name, created_at) VALUES (1, 7, 'hall', 4.0)")
+    for k in (1, 2):
+        x(
+            "INSERT INTO images (id, tour_id, location_id, seq, timestamp, v, w, width, height, "
+            "jpeg) VALUES (?, 7, 1, ?, 0.0, 0.0, 0.0, 64, 48, ?)",
+            (k, k, make_jpeg(k)),
+        )
+    x(
+        "INSERT INTO learned_changes (id, tour_id, kind, created_at, source, summary, counts) "
+        "VALUES (4, 7, 'experience', 1.0, 'run', 's', NULL), "
+        "(5, 7, 'transitions', 2.0, 'run', 'c', ?)",
+        (b"\x00",),
+    )
+    x(
+        "INSERT INTO experiences (id, change_id, image_id, features, created_at) "
+        "VALUES (9, 4, 1, ?, 1.0)",
+        (b"\x01\x02",),
+    )
+    before = _rows(db, ("learned_changes", "experiences", "images", "tours"))
+    db.close()
+    repo = Repo(store)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 7
+        assert _rows(repo.db, before) == before
+        assert repo.integrity_ok()
+        junction = Junction(1, 2, 3, 2, (0, 2))
+        made = repo.add_junction_change(7, junction, source="search", summary="j", now=3.0)
+        assert made == 6 and repo.junctions(7) == [(6, junction)]
+        assert [r.kind for r in repo.learned_changes(7)] == [
+            "experience",
+            "transitions",
+            "junction",
+        ]
+        repo.remove_learned_change(7, 4)
+        repo.remove_learned_change(7, 6)
+        assert repo.experiences(7) == [] and repo.junctions(7) == []
+        assert repo.db.execute("SELECT count(*) FROM junctions").fetchone()[0] == 0
+    finally:
+        repo.close()
