@@ -343,6 +343,11 @@ class NavigationService:
                 )
         return session
 
+    def tour_of(self, robot: str) -> int:
+        """The tour the robot's live session navigates (KeyError when it has none)."""
+        with self._lock:
+            return self._tour_of[robot]
+
     def is_navigating(self, robot: str) -> bool:
         """Whether the robot has a task underway (the persisted row answers for a robot with no
         live session, without resuming it)."""
