@@ -38,8 +38,12 @@ class QuestionParams:
       ``localised_steps`` frames, and evidence) at a known place other than the one the open
       path starts from, with at least this belief mass there on this many frames in a row.
       Set once by hand, not tuned per home (docs/learning.md says what was measured).
-    * ``new_path_edge_mass`` (0.5): a navigating frame is *on a taught edge* when one edge
-      holds at least this much of the belief; a traversal with such a frame is not new.
+    * ``new_path_edge_mass`` (0.5) and ``new_path_evidence`` (0.75): a navigating frame is
+      *on a taught edge* when one edge holds at least this much of the belief and the images
+      agree with the belief's prediction (the tracker's evidence ratio at least this, as for
+      ``TrackerParams.localised_evidence``); a traversal with such a frame is not new. (Mass
+      alone is not enough: a robot sent along an edge keeps pushing the belief onto it while
+      the images match nothing.)
     * ``new_path_min_frames`` (10) and ``new_path_max_frames`` (600): a new path is proposed
       only when at least this many frames (none on a taught edge) lie between leaving one known
       place and being localised at another; a longer run is dropped (memory bound).
@@ -51,13 +55,14 @@ class QuestionParams:
     same_place_mass: float = 0.9
     same_place_steps: int = 3
     new_path_edge_mass: float = 0.5
+    new_path_evidence: float = 0.75
     new_path_min_frames: int = 10
     new_path_max_frames: int = 600
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.expiry_s) and self.expiry_s > 0):
             raise ValueError(f"expiry_s must be > 0 seconds, got {self.expiry_s}")
-        for name in ("same_place_mass", "new_path_edge_mass"):
+        for name in ("same_place_mass", "new_path_edge_mass", "new_path_evidence"):
             value = getattr(self, name)
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"{name} must be in (0, 1], got {value}")
@@ -123,8 +128,9 @@ class Traversal:
 @dataclass
 class NewPathDetector:
     """Per navigating robot: :meth:`step` once per frame. The rule (documented in
-    :class:`QuestionParams`): the robot is localised at a known place A; it leaves; every
-    following frame has no edge holding ``new_path_edge_mass`` of the belief; it is then
+    :class:`QuestionParams`): the robot is localised at a known place A; it leaves; no
+    following frame is on a taught edge (an edge holding ``new_path_edge_mass`` of the belief
+    with the evidence at least ``new_path_evidence``); it is then
     localised at another known place B after at least ``new_path_min_frames`` such frames:
     the frames in between are a :class:`Traversal` from A to B. A frame on a taught edge, a
     return to A, or a run longer than ``new_path_max_frames`` drops the frames."""
@@ -150,9 +156,11 @@ class NewPathDetector:
         n_locations: int,
         *,
         localised_state: int | None,
+        evidence: float = 1.0,
     ) -> Traversal | None:
         """``frame``: the caller's index of this frame; ``state_mass``: ``(n_states,)``;
-        ``localised_state``: the tracker's localised state or ``None``."""
+        ``localised_state``: the tracker's localised state or ``None``; ``evidence``: the
+        tracker's evidence ratio (0..1, :class:`server.belief.tracker.BeliefSummary`)."""
         mass = np.asarray(state_mass, dtype=np.float64)
         at = (
             int(localised_state)
@@ -173,7 +181,11 @@ class NewPathDetector:
         if self._origin is None or self._broken:
             return None
         edges = mass[n_locations:]
-        on_edge = bool(len(edges)) and float(edges.max()) >= self.params.new_path_edge_mass
+        on_edge = (
+            bool(len(edges))
+            and float(edges.max()) >= self.params.new_path_edge_mass
+            and evidence >= self.params.new_path_evidence
+        )
         if on_edge or len(self._frames) >= self.params.new_path_max_frames:
             self._broken, self._frames = True, []
             return None

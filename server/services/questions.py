@@ -232,6 +232,7 @@ class QuestionService(TeachingObserver, NavigationObserver):
             s.state,
             rt.graph.n_locations,
             localised_state=s.localised_state if s.localised else None,
+            evidence=s.evidence,
         )
         kept = set(state.detector.frames)
         if frame in kept:
@@ -336,7 +337,7 @@ class QuestionService(TeachingObserver, NavigationObserver):
         mark = self.teaching.mark(q.robot, schemas.LocationMark(name=place))
         if mark.edge is None:  # pragma: no cover - a question needs an open path
             raise Conflict(f"robot {q.robot!r} has no open path to close at {place!r}")
-        start = mark.edge.source
+        start = mark.edge.source_name
         change = self.repo.add_learned_change(
             q.tour_id,
             "loop_closure",

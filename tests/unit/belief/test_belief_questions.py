@@ -3,6 +3,8 @@ from their docstrings, properties over random belief sequences, and the paramete
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -32,7 +34,7 @@ def naive_same_place(
     ``same_place_steps`` frames localised at the same location (not ``start``) with at least
     ``same_place_mass`` there; skipped locations are never asked."""
     out = []
-    for t, (loc, m) in enumerate(seq):
+    for t, (loc, _) in enumerate(seq):
         if loc is None or not 0 <= loc < N_LOC or loc == start or loc in skip:
             continue
         run = 0
@@ -85,38 +87,40 @@ def test_same_place_asks_after_three_confident_frames_and_never_at_the_start() -
 
 
 def naive_new_paths(
-    seq: list[tuple[int | None, np.ndarray]], params: QuestionParams
+    seq: list[tuple[int | None, np.ndarray, float]], params: QuestionParams
 ) -> list[Traversal]:
-    """Every maximal stretch between a frame localised at location A and the next frame
-    localised at a location B != A, when every frame strictly between them is localised at no
-    location and has no edge with ``new_path_edge_mass``, and there are between
+    """Every stretch between a frame localised at location A and the next frame localised at
+    a location B != A, when no frame strictly between them has an edge with
+    ``new_path_edge_mass`` and evidence ``new_path_evidence``, and there are between
     ``new_path_min_frames`` and ``new_path_max_frames`` of them."""
     out = []
-    at = [
-        (t, loc) for t, (loc, _) in enumerate(seq) if loc is not None and 0 <= loc < N_LOC
-    ]
-    for (t0, a), (t1, b) in zip(at, at[1:], strict=False):
+    at = [(t, loc) for t, (loc, _, _) in enumerate(seq) if loc is not None and 0 <= loc < N_LOC]
+    for (t0, a), (t1, b) in itertools.pairwise(at):
         between = range(t0 + 1, t1)
-        clean = all(float(seq[u][1][N_LOC:].max()) < params.new_path_edge_mass for u in between)
+        clean = all(
+            float(seq[u][1][N_LOC:].max()) < params.new_path_edge_mass
+            or seq[u][2] < params.new_path_evidence
+            for u in between
+        )
         n = len(between)
         if a != b and clean and params.new_path_min_frames <= n <= params.new_path_max_frames:
             out.append(Traversal(a, b, tuple(between), float(seq[t1][1][b])))
     return out
 
 
-@settings(max_examples=200, deadline=None)
-@given(st.lists(st.tuples(states, probs), min_size=1, max_size=40))
-def test_new_paths_match_the_naive_reference(raw: list[tuple[int | None, float]]) -> None:
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(states, probs, st.sampled_from([0.5, 0.9])), min_size=1, max_size=40))
+def test_new_paths_match_the_naive_reference(raw: list[tuple[int | None, float, float]]) -> None:
     params = QuestionParams(new_path_min_frames=2, new_path_max_frames=6)
     seq = []
-    for s, p in raw:
+    for s, p, evidence in raw:
         # a frame localised nowhere holds its mass on the state drawn (edges 3, 4 or none)
         m = mass(s, p) if s is not None else np.full(5, 0.2)
-        seq.append((s if s is not None and s < N_LOC else None, m))
+        seq.append((s if s is not None and s < N_LOC else None, m, evidence))
     det = NewPathDetector(params)
     got = []
-    for t, (loc, m) in enumerate(seq):
-        found = det.step(t, m, N_LOC, localised_state=loc)
+    for t, (loc, m, evidence) in enumerate(seq):
+        found = det.step(t, m, N_LOC, localised_state=loc, evidence=evidence)
         assert set(det.frames) <= set(range(t + 1))
         if found is not None:
             got.append(found)
@@ -134,10 +138,12 @@ def test_a_traversal_along_a_taught_edge_is_not_new() -> None:
     assert found == Traversal(0, 2, (1, 2, 3), 0.9)
     # from 2, one frame on edge 3 spoils the way to 1
     det.step(5, flat, N_LOC, localised_state=None)
-    det.step(6, mass(3, 0.7), N_LOC, localised_state=None)
+    det.step(6, mass(3, 0.7), N_LOC, localised_state=None, evidence=0.5)  # images disagree
+    assert det.frames == (5, 6)
+    det.step(7, mass(3, 0.7), N_LOC, localised_state=None, evidence=0.9)
     assert det.frames == ()
-    det.step(7, flat, N_LOC, localised_state=None)
-    assert det.step(8, mass(1), N_LOC, localised_state=1) is None
+    det.step(8, flat, N_LOC, localised_state=None)
+    assert det.step(9, mass(1), N_LOC, localised_state=1) is None
 
 
 @pytest.mark.parametrize(
@@ -147,6 +153,7 @@ def test_a_traversal_along_a_taught_edge_is_not_new() -> None:
         {"expiry_s": float("nan")},
         {"same_place_mass": 0.0},
         {"new_path_edge_mass": 1.5},
+        {"new_path_evidence": 0.0},
         {"same_place_steps": 0},
         {"new_path_min_frames": 5, "new_path_max_frames": 4},
     ],
