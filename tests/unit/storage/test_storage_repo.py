@@ -388,3 +388,45 @@ def test_learned_changes_are_listed_pruned_and_removed(repo: Repo) -> None:
         repo.remove_learned_change(other, two)
     repo.remove_learned_change(tour, two)
     assert repo.experiences(tour) == [] and len(repo.learned_changes(tour)) == 2
+
+
+def test_a_schema_5_database_upgrades_losing_nothing(tmp_path: Path) -> None:
+    """Schema 5 -> 6 (questions; learned_changes rebuilt): every learned change and experience
+    kept, experiences still cascade with their change, any kind of LEARNED_KINDS is accepted."""
+    import sqlite_utils
+
+    path = tmp_path / "five.sqlite"
+    conn = sqlite3.connect(path, isolation_level=None)
+    conn.execute("PRAGMA foreign_keys = ON")
+    assert migrate(sqlite_utils.Database(conn), upto=5) == 5
+    x = conn.execute
+    x("INSERT INTO tours VALUES (7, 1, 'home', 3.0, NULL, NULL, NULL)")
+    x("INSERT INTO locations VALUES (1, 7, 'hall', 4.0)")
+    x(
+        "INSERT INTO images (id, tour_id, location_id, seq, timestamp, v, w, width, height, "
+        "jpeg) VALUES (5, 7, 1, 0, 0.0, 0.0, 0.0, 64, 48, ?)",
+        (make_jpeg(),),
+    )
+    x("INSERT INTO learned_changes VALUES (3, 7, 'experience', 9.0, 'run', 's', NULL)")
+    x("INSERT INTO learned_changes VALUES (4, 7, 'transitions', 9.5, 'run', 'c', x'00')")
+    x("INSERT INTO experiences VALUES (11, 3, 5, x'0102', 9.0)")
+    before = _rows(conn, ("learned_changes", "experiences"))
+    conn.close()
+    repo = Repo(path)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 6
+        assert _rows(repo.db.conn, before) == before  # the columns they had, every row
+        assert [(r.id, r.kind, r.images, r.edge_id) for r in repo.learned_changes(7)] == [
+            (3, "experience", 1, None),
+            (4, "transitions", 0, None),
+        ]
+        assert repo.integrity_ok()
+        assert repo.db.execute("PRAGMA foreign_key_check").fetchall() == []
+        repo.remove_learned_change(7, 3)  # the experience goes with its change
+        assert repo.experiences(7) == []
+        with repo.transaction():
+            repo.add_learned_change(7, "look_alike", source="q", summary="s", now=1.0)
+        with pytest.raises(ValueError, match="unknown learned change kind"):
+            repo.add_learned_change(7, "guess", source="q", summary="s", now=1.0)
+    finally:
+        repo.close()
