@@ -44,9 +44,20 @@ class QuestionParams:
       ``TrackerParams.localised_evidence``); a traversal with such a frame is not new. (Mass
       alone is not enough: a robot sent along an edge keeps pushing the belief onto it while
       the images match nothing.)
-    * ``new_path_min_frames`` (10) and ``new_path_max_frames`` (600): a new path is proposed
-      only when at least this many frames (none on a taught edge) lie between leaving one known
-      place and being localised at another; a longer run is dropped (memory bound).
+    * ``new_path_min_frames`` (10), ``new_path_min_m`` (1.0 m) and ``new_path_max_frames``
+      (600): a new path is proposed only when it has at least this many frames in which the
+      robot moved and it drove at least this far (odometry, sum of ``|v| dt``); only its last
+      ``new_path_max_frames`` frames are kept (memory bound: a robot that wandered long gives
+      the end of its way).
+    * ``still_v`` (0.01 m/s) and ``still_w`` (0.02 rad/s): a frame below both is the robot
+      standing; standing at the place it was localised at starts the way afresh from there.
+
+    Which frames make the new path (:class:`NewPathDetector`): places are rooms, and the
+    belief says "at the living room" while the robot crosses it (its spin images see all of
+    it), so the way starts where the robot last stood at the place it left (or where it was
+    first localised there), not where the belief let go of it; in the simulated apartment the
+    belief went from the living room to the kitchen in 5 frames, 75 frames after the robot set
+    off across the living room.
     """
 
     teaching: bool = False
@@ -57,7 +68,10 @@ class QuestionParams:
     new_path_edge_mass: float = 0.5
     new_path_evidence: float = 0.75
     new_path_min_frames: int = 10
+    new_path_min_m: float = 1.0
     new_path_max_frames: int = 600
+    still_v: float = 0.01
+    still_w: float = 0.02
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.expiry_s) and self.expiry_s > 0):
@@ -70,6 +84,10 @@ class QuestionParams:
             raise ValueError("same_place_steps and new_path_min_frames must be >= 1")
         if self.new_path_max_frames < self.new_path_min_frames:
             raise ValueError("new_path_max_frames must be >= new_path_min_frames")
+        for name in ("new_path_min_m", "still_v", "still_w"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
 
 
 @dataclass
@@ -127,27 +145,32 @@ class Traversal:
 
 @dataclass
 class NewPathDetector:
-    """Per navigating robot: :meth:`step` once per frame. The rule (documented in
-    :class:`QuestionParams`): the robot is localised at a known place A; it leaves; no
-    following frame is on a taught edge (an edge holding ``new_path_edge_mass`` of the belief
-    with the evidence at least ``new_path_evidence``); it is then
-    localised at another known place B after at least ``new_path_min_frames`` such frames:
-    the frames in between are a :class:`Traversal` from A to B. A frame on a taught edge, a
-    return to A, or a run longer than ``new_path_max_frames`` drops the frames."""
+    """Per navigating robot: :meth:`step` once per frame. The rule (parameters in
+    :class:`QuestionParams`):
+
+    * the robot's *origin* is the last known place the tracker was localised at; a frame on a
+      taught edge (``new_path_edge_mass`` with ``new_path_evidence``) forgets it (that way is
+      taught already);
+    * from the origin on, every frame in which the robot moves is kept, and a frame in which
+      it stands while localised at the origin drops what was kept (the way starts there);
+      only the last ``new_path_max_frames`` are kept;
+    * when the tracker is localised at another known place, the kept frames are a
+      :class:`Traversal` from the origin to it if there are at least ``new_path_min_frames``
+      of them and they drove at least ``new_path_min_m``; that place is the new origin.
+    """
 
     params: QuestionParams = field(default_factory=QuestionParams)
     _origin: int | None = None
-    _frames: list[int] = field(default_factory=list)
-    _broken: bool = False
+    _frames: list[tuple[int, float]] = field(default_factory=list)  # (frame, metres in it)
 
     def reset(self) -> None:
         """Forget everything (a new task, or a new tour snapshot)."""
-        self._origin, self._frames, self._broken = None, [], False
+        self._origin, self._frames = None, []
 
     @property
     def frames(self) -> tuple[int, ...]:
         """The frames kept so far (the caller keeps their images, and drops the others)."""
-        return tuple(self._frames)
+        return tuple(f for f, _ in self._frames)
 
     def step(
         self,
@@ -157,37 +180,47 @@ class NewPathDetector:
         *,
         localised_state: int | None,
         evidence: float = 1.0,
+        v: float = 0.0,
+        w: float = 0.0,
+        dt: float = 0.0,
     ) -> Traversal | None:
         """``frame``: the caller's index of this frame; ``state_mass``: ``(n_states,)``;
         ``localised_state``: the tracker's localised state or ``None``; ``evidence``: the
-        tracker's evidence ratio (0..1, :class:`server.belief.tracker.BeliefSummary`)."""
+        tracker's evidence ratio (0..1, :class:`server.belief.tracker.BeliefSummary`);
+        ``v`` (m/s), ``w`` (rad/s): the robot's odometry; ``dt`` (s) since the last frame."""
+        p = self.params
         mass = np.asarray(state_mass, dtype=np.float64)
+        edges = mass[n_locations:]
+        if (
+            len(edges)
+            and float(edges.max()) >= p.new_path_edge_mass
+            and evidence >= (p.new_path_evidence)
+        ):
+            self.reset()
+            return None
         at = (
             int(localised_state)
             if localised_state is not None and 0 <= localised_state < n_locations
             else None
         )
-        if at is not None:
+        if at is not None and at != self._origin:
             found = None
+            kept = self._frames
             if (
                 self._origin is not None
-                and at != self._origin
-                and not self._broken
-                and len(self._frames) >= self.params.new_path_min_frames
+                and len(kept) >= p.new_path_min_frames
+                and sum(m for _, m in kept) >= p.new_path_min_m
             ):
-                found = Traversal(self._origin, at, tuple(self._frames), float(mass[at]))
-            self._origin, self._frames, self._broken = at, [], False
+                found = Traversal(self._origin, at, tuple(f for f, _ in kept), float(mass[at]))
+            self._origin, self._frames = at, []
             return found
-        if self._origin is None or self._broken:
+        if self._origin is None:
             return None
-        edges = mass[n_locations:]
-        on_edge = (
-            bool(len(edges))
-            and float(edges.max()) >= self.params.new_path_edge_mass
-            and evidence >= self.params.new_path_evidence
-        )
-        if on_edge or len(self._frames) >= self.params.new_path_max_frames:
-            self._broken, self._frames = True, []
+        if abs(v) < p.still_v and abs(w) < p.still_w:
+            if at == self._origin:
+                self._frames = []
             return None
-        self._frames.append(frame)
+        self._frames.append((frame, abs(v) * max(dt, 0.0)))
+        if len(self._frames) > p.new_path_max_frames:
+            del self._frames[0]
         return None

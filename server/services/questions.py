@@ -65,6 +65,7 @@ class _Exploring:
     detector: NewPathDetector
     frames: dict[int, FrameRow] = field(default_factory=dict)
     count: int = 0
+    last_timestamp: float | None = None
 
 
 class QuestionService(TeachingObserver, NavigationObserver):
@@ -226,6 +227,8 @@ class QuestionService(TeachingObserver, NavigationObserver):
                 self._explore[robot] = state
         frame = state.count
         state.count += 1
+        last, state.last_timestamp = state.last_timestamp, meta.timestamp
+        dt = 0.0 if last is None else float(np.clip(meta.timestamp - last, 0.0, rt.params.max_dt_s))
         s = step.summary
         found = state.detector.step(
             frame,
@@ -233,6 +236,9 @@ class QuestionService(TeachingObserver, NavigationObserver):
             rt.graph.n_locations,
             localised_state=s.localised_state if s.localised else None,
             evidence=s.evidence,
+            v=meta.v,
+            w=meta.w,
+            dt=dt,
         )
         kept = set(state.detector.frames)
         if frame in kept:

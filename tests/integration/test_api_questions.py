@@ -54,8 +54,8 @@ class Home:
     def services(self) -> Services:
         return self.c.app.state.services  # type: ignore[attr-defined,no-any-return]
 
-    def post(self, url: str, data: bytes, v: float = 0.3) -> dict[str, Any]:
-        self.t[0] += 0.5
+    def post(self, url: str, data: bytes, v: float = 0.3, dt: float = 0.5) -> dict[str, Any]:
+        self.t[0] += dt
         r = self.c.post(
             f"/robots/rover/{url}",
             params={"timestamp": self.t[0], "v": v},
@@ -249,9 +249,9 @@ def test_a_new_path_found_while_navigating_is_added_on_yes_and_used_by_the_plann
     before_cost = float(rt.costs(cc)[a])
     r = c.post("/robots/rover/goto", json={"location": "B"}, headers=home.robot)
     assert r.status_code == 200, r.text
-    # at A, then twelve views no edge explains, then C
+    # at A, then twelve views no edge explains, then C, driving 1 m/s (faster than taught)
     for img in [scene(10)] * 5 + [scene(900 + k) for k in range(12)] + [scene(12)] * 6:
-        home.post("frames", img)
+        home.post("frames", img, v=1.0, dt=0.1)
     (q,) = home.questions()
     assert q["kind"] == "new_path" and (q["source_location"], q["location"]) == ("A", "C")
     assert q["frames"] >= 12 and "Keep it?" in q["text"]

@@ -3,8 +3,6 @@ from their docstrings, properties over random belief sequences, and the paramete
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -86,64 +84,97 @@ def test_same_place_asks_after_three_confident_frames_and_never_at_the_start() -
     assert step(mass(3), N_LOC, localised_state=3, start=1) is None  # an edge, not a place
 
 
-def naive_new_paths(
-    seq: list[tuple[int | None, np.ndarray, float]], params: QuestionParams
-) -> list[Traversal]:
-    """Every stretch between a frame localised at location A and the next frame localised at
-    a location B != A, when no frame strictly between them has an edge with
-    ``new_path_edge_mass`` and evidence ``new_path_evidence``, and there are between
-    ``new_path_min_frames`` and ``new_path_max_frames`` of them."""
+Frame = tuple[int | None, np.ndarray, float, float]  # localised place, mass, evidence, v
+
+
+def naive_new_paths(seq: list[Frame], params: QuestionParams, dt: float) -> list[Traversal]:
+    """From the rule in NewPathDetector's docstring: first the origin of every frame (a frame
+    on a taught edge forgets it, a frame localised at another place replaces it), then, for
+    every frame localised at a place B other than the origin before it, the frames after the
+    origin began, back to its last standing frame, that moved (the last max_frames)."""
+    origin: list[int | None] = []
+    current: int | None = None
+    for loc, m, evidence, _ in seq:
+        if float(m[N_LOC:].max()) >= params.new_path_edge_mass and (
+            evidence >= params.new_path_evidence
+        ):
+            current = None
+        elif loc is not None and loc != current:
+            current = loc
+        origin.append(current)
     out = []
-    at = [(t, loc) for t, (loc, _, _) in enumerate(seq) if loc is not None and 0 <= loc < N_LOC]
-    for (t0, a), (t1, b) in itertools.pairwise(at):
-        between = range(t0 + 1, t1)
-        clean = all(
-            float(seq[u][1][N_LOC:].max()) < params.new_path_edge_mass
-            or seq[u][2] < params.new_path_evidence
-            for u in between
-        )
-        n = len(between)
-        if a != b and clean and params.new_path_min_frames <= n <= params.new_path_max_frames:
-            out.append(Traversal(a, b, tuple(between), float(seq[t1][1][b])))
+    for t, (loc, m, _, _) in enumerate(seq):
+        before = origin[t - 1] if t else None
+        if loc is None or before is None or loc == before or origin[t] != loc:
+            continue
+        kept: list[int] = []
+        u = t - 1
+        while u >= 1 and origin[u] == before and origin[u - 1] == before:
+            lu, _, _, vu = seq[u]
+            if abs(vu) < params.still_v:
+                if lu == before:
+                    break
+            else:
+                kept.append(u)
+            u -= 1
+        kept = sorted(kept)[-params.new_path_max_frames :]
+        metres = sum(abs(seq[k][3]) * dt for k in kept)
+        if len(kept) >= params.new_path_min_frames and metres >= params.new_path_min_m:
+            out.append(Traversal(before, loc, tuple(kept), float(m[loc])))
     return out
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(st.tuples(states, probs, st.sampled_from([0.5, 0.9])), min_size=1, max_size=40))
-def test_new_paths_match_the_naive_reference(raw: list[tuple[int | None, float, float]]) -> None:
-    params = QuestionParams(new_path_min_frames=2, new_path_max_frames=6)
-    seq = []
-    for s, p, evidence in raw:
+@given(
+    st.lists(
+        st.tuples(states, probs, st.sampled_from([0.5, 0.9]), st.sampled_from([0.0, 0.5])),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_new_paths_match_the_naive_reference(
+    raw: list[tuple[int | None, float, float, float]],
+) -> None:
+    params = QuestionParams(new_path_min_frames=2, new_path_min_m=1.0, new_path_max_frames=6)
+    seq: list[Frame] = []
+    for s, p, evidence, v in raw:
         # a frame localised nowhere holds its mass on the state drawn (edges 3, 4 or none)
         m = mass(s, p) if s is not None else np.full(5, 0.2)
-        seq.append((s if s is not None and s < N_LOC else None, m, evidence))
+        seq.append((s if s is not None and s < N_LOC else None, m, evidence, v))
     det = NewPathDetector(params)
     got = []
-    for t, (loc, m, evidence) in enumerate(seq):
-        found = det.step(t, m, N_LOC, localised_state=loc, evidence=evidence)
+    for t, (loc, m, evidence, v) in enumerate(seq):
+        found = det.step(t, m, N_LOC, localised_state=loc, evidence=evidence, v=v, dt=1.0)
         assert set(det.frames) <= set(range(t + 1))
         if found is not None:
             got.append(found)
-    assert got == naive_new_paths(seq, params)
+    assert got == naive_new_paths(seq, params, dt=1.0)
 
 
-def test_a_traversal_along_a_taught_edge_is_not_new() -> None:
-    det = NewPathDetector(QuestionParams(new_path_min_frames=2))
+def test_the_way_starts_where_the_robot_stood_and_a_taught_edge_spoils_it() -> None:
+    det = NewPathDetector(QuestionParams(new_path_min_frames=2, new_path_min_m=0.5))
     flat = np.full(5, 0.2)
-    assert det.step(0, mass(0), N_LOC, localised_state=0) is None
-    for t in (1, 2, 3):
-        assert det.step(t, flat, N_LOC, localised_state=None) is None
-    assert det.frames == (1, 2, 3)
-    found = det.step(4, mass(2, 0.9), N_LOC, localised_state=2)
-    assert found == Traversal(0, 2, (1, 2, 3), 0.9)
-    # from 2, one frame on edge 3 spoils the way to 1
-    det.step(5, flat, N_LOC, localised_state=None)
-    det.step(6, mass(3, 0.7), N_LOC, localised_state=None, evidence=0.5)  # images disagree
-    assert det.frames == (5, 6)
-    det.step(7, mass(3, 0.7), N_LOC, localised_state=None, evidence=0.9)
+
+    def step(t: int, m: np.ndarray, at: int | None, v: float = 0.3, e: float = 0.5) -> object:
+        return det.step(t, m, N_LOC, localised_state=at, evidence=e, v=v, dt=1.0)
+
+    assert step(0, mass(0), 0, v=0.0) is None  # standing at place 0
+    assert step(1, mass(0), 0) is None  # crossing the room: still "at 0"
+    assert step(2, mass(0), 0, v=0.0) is None  # stood again: the way starts here
+    for t in (3, 4, 5):
+        assert step(t, mass(0) if t == 3 else flat, 0 if t == 3 else None) is None
+    assert det.frames == (3, 4, 5)
+    assert step(6, mass(2, 0.9), 2) == Traversal(0, 2, (3, 4, 5), 0.9)
+    # from 2: a frame on edge 3 with images that disagree is not on it; one that agrees is
+    step(7, flat, None)
+    step(8, mass(3, 0.7), None, e=0.5)
+    assert det.frames == (7, 8)
+    step(9, mass(3, 0.7), None, e=0.9)
     assert det.frames == ()
-    det.step(8, flat, N_LOC, localised_state=None)
-    assert det.step(9, mass(1), N_LOC, localised_state=1) is None
+    step(10, flat, None)
+    assert step(11, mass(1), 1) is None  # no origin since the edge
+    step(12, flat, None)  # too short a way from 1
+    assert step(13, mass(2), 2) is None
 
 
 @pytest.mark.parametrize(
@@ -154,6 +185,8 @@ def test_a_traversal_along_a_taught_edge_is_not_new() -> None:
         {"same_place_mass": 0.0},
         {"new_path_edge_mass": 1.5},
         {"new_path_evidence": 0.0},
+        {"new_path_min_m": -1.0},
+        {"still_v": float("inf")},
         {"same_place_steps": 0},
         {"new_path_min_frames": 5, "new_path_max_frames": 4},
     ],
