@@ -128,7 +128,9 @@ class QuestionService(TeachingObserver, NavigationObserver):
         row = self.repo.teaching(robot)
         if row is None or row.current_location_id is None:
             return
-        rt = self.navigation.runtime(tour_id)
+        # never wait for a rebuild here (a robot's frame would time out): the snapshot as last
+        # built; the places marked since join when the background rebuild is done
+        rt = self.navigation.latest_runtime(tour_id)
         graph = rt.graph
         state = self._teach.get(robot)
         if state is None or state.runtime is not rt:

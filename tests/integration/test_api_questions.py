@@ -119,7 +119,10 @@ def home(tmp_path: Path) -> Iterator[Home]:
 
 
 def back_at_a(home: Home, frames: int = 8) -> list[dict[str, Any]]:
-    """From C, three new views, then A's view until the robot asks (at most ``frames``)."""
+    """From C, three new views, then A's view until the robot asks (at most ``frames``).
+    The tour's runtime is brought up to date first (as the background rebuild does a second
+    after teaching changed it), so the test does not depend on that thread's timing."""
+    home.services.navigation.runtime(home.tour)
     for k in range(3):
         home.post("frames", scene(900 + k))
     for _ in range(frames):
