@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from server.bench.common import write_json
+from server.tuning import add_set_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,11 +39,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--wait", type=int, default=15, help="frames a robot stands at an unnamed place"
     )
+    parser.add_argument(
+        "--modes",
+        nargs="+",
+        choices=("marked", "unmarked"),
+        default=["marked", "unmarked"],
+        help="every arrival named, revisits unnamed, or both (default)",
+    )
+    add_set_argument(parser, "a navigation setting for the server (questions.same_place_mass=0.8)")
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
 
 
+def _view_fit(client: Any, frame_id: int | None, place_image: int | None) -> tuple[int, float]:
+    """Inliers and scale of :func:`homing_scale` between the frame a question was asked at and
+    the place's image it matched (0, 0.0 when either is gone or no fit)."""
+    from server.imaging import ImageLimits, decode_jpeg
+    from server.vision.features import extract
+    from server.vision.homing import homing_scale
+
+    if frame_id is None or place_image is None:
+        return 0, 0.0
+    limits = ImageLimits()
+    a, b = (extract(decode_jpeg(client.image(i), limits)[0]) for i in (frame_id, place_image))
+    fit = homing_scale(a, b)
+    return (0, 0.0) if fit is None else (fit.inliers, round(fit.scale, 3))
+
+
 def _home(
-    plan_path: Path | None, seed: int, near: float, wait: int, marked: bool
+    plan_path: Path | None,
+    seed: int,
+    near: float,
+    wait: int,
+    marked: bool,
+    settings: dict[str, Any],
 ) -> dict[str, Any]:
     """Teach one home's route once (``marked``: every arrival named) and score the questions."""
     from robot_client.client import TeachRepeatClient
@@ -55,7 +84,7 @@ def _home(
 
     plan = load_plan(plan_path)
     route = teaching_route(plan)
-    env = {"TEACHREPEAT_NAVIGATION": json.dumps({"questions.teaching": True})}
+    env = {"TEACHREPEAT_NAVIGATION": json.dumps({"questions.teaching": True, **settings})}
     asked: list[dict[str, Any]] = []
     revisits = hits = misses = wrong = 0
     started = time.perf_counter()
@@ -93,8 +122,11 @@ def _home(
                 seen_ids.add(q.id)
                 place = plan.place(q.location)
                 distance = math.hypot(pose[0] - place.x, pose[1] - place.y)
+                inliers, scale = _view_fit(client, q.image_id, q.match_image_id)
                 asked.append(
                     {
+                        "inliers": inliers,
+                        "scale": scale,
                         "place": q.location,
                         "confidence": q.confidence,
                         "distance_m": round(distance, 3),
@@ -168,8 +200,8 @@ def run(args: argparse.Namespace) -> int:
     plans: list[Path | None] = list(args.plan) if args.plan else [None]
     results = []
     for plan in plans:
-        for marked in (True, False):
-            r = _home(plan, args.seed, args.near, args.wait, marked)
+        for marked in [m == "marked" for m in args.modes]:
+            r = _home(plan, args.seed, args.near, args.wait, marked, dict(args.settings or []))
             results.append(r)
             if marked:
                 print(
@@ -184,6 +216,12 @@ def run(args: argparse.Namespace) -> int:
                     f"{r['answered_no']} questions about another place; {r['places']} places, "
                     f"{r['edges']} paths ({r['seconds']} s)"
                 )
-    summary = {"seed": args.seed, "near_m": args.near, "wait": args.wait, "runs": results}
+    summary = {
+        "seed": args.seed,
+        "near_m": args.near,
+        "wait": args.wait,
+        "settings": dict(args.settings or []),
+        "runs": results,
+    }
     write_json(args.json, summary)
     return 0

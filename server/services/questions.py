@@ -41,7 +41,8 @@ from server.services.navigation import NavigationObserver, NavigationService
 from server.services.teaching import MIN_EDGE_IMAGES, TeachingObserver, TeachingService
 from server.session import RobotSession, StepRecord
 from server.storage.repo import FrameRow, QuestionRow, Repo
-from server.vision.features import extract
+from server.vision.features import ImageFeatures, extract
+from server.vision.homing import homing_scale
 
 log = logging.getLogger(__name__)
 
@@ -169,6 +170,8 @@ class QuestionService(TeachingObserver, NavigationObserver):
             return
         k, mass = hit
         b = int(best[k]) if k < len(best) else -1
+        if not self._view_agrees(features, rt, b):
+            return
         place = graph.locations[k]
         self.repo.add_question(
             robot=robot,
@@ -182,6 +185,21 @@ class QuestionService(TeachingObserver, NavigationObserver):
             confidence=mass,
             now=now,
             expires_at=now + self.params.expiry_s,
+        )
+
+    def _view_agrees(self, features: ImageFeatures, rt: TourRuntime, image: int) -> bool:
+        """Whether the frame and the place's image ``image`` (canonical index) show the same
+        scene from about the same spot (``same_place_inliers``, ``same_place_scale``)."""
+        p = self.params
+        if p.same_place_inliers == 0:
+            return True
+        if not 0 <= image < len(rt.features):
+            return False
+        fit = homing_scale(features, rt.features[image])
+        return (
+            fit is not None
+            and fit.inliers >= p.same_place_inliers
+            and 1.0 / p.same_place_scale <= fit.scale <= p.same_place_scale
         )
 
     def _start_tracking(
