@@ -911,9 +911,10 @@ class Repo:
             "SELECT id FROM questions WHERE robot = ? AND state = 'open' AND expires_at <= ?",
             (robot, now),
         )
-        with self.transaction():
-            for (question_id,) in due:
-                self.close_question(question_id, "expired", now=now)
+        if due:  # no write (no transaction) when nothing is due
+            with self.transaction():
+                for (question_id,) in due:
+                    self.close_question(question_id, "expired", now=now)
         return len(due)
 
     def withdraw_questions(self, robot: str, kind: str, now: float) -> int:
@@ -922,9 +923,10 @@ class Repo:
             "SELECT id FROM questions WHERE robot = ? AND state = 'open' AND kind = ?",
             (robot, kind),
         )
-        with self.transaction():
-            for (question_id,) in due:
-                self.close_question(question_id, "withdrawn", now=now)
+        if due:
+            with self.transaction():
+                for (question_id,) in due:
+                    self.close_question(question_id, "withdrawn", now=now)
         return len(due)
 
     def set_question_change(self, question_id: int, change_id: int) -> None:
