@@ -267,6 +267,17 @@ class TeachRepeatClient:
         """Remove one learned change of the tour."""
         self._request("DELETE", f"/tours/{tour}/learned/{change}")
 
+    def questions(self, robot: str) -> list[schemas.QuestionPublic]:
+        """The robot's open questions (docs/learning.md), oldest first."""
+        return self._list(schemas.QuestionPublic, f"/robots/{robot}/questions")
+
+    def answer(self, robot: str, question: int, answer: str) -> schemas.QuestionPublic:
+        """Answer one of the robot's questions 'yes' or 'no'."""
+        body = schemas.QuestionAnswer.model_validate({"answer": answer}).model_dump()
+        return self._call(
+            schemas.QuestionPublic, "POST", f"/robots/{robot}/questions/{question}", json=body
+        )
+
     def recordings(self, robot: str) -> list[schemas.RecordingPublic]:
         """The robot's recordings, newest first."""
         return self._list(schemas.RecordingPublic, f"/robots/{robot}/recordings")

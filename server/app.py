@@ -22,7 +22,16 @@ from starlette.routing import Match, Mount
 from server import schemas
 from server.api.deps import PrincipalDep
 from server.api.guard import Guard
-from server.api.routes import households, images, navigate, recordings, robots, teach, tours
+from server.api.routes import (
+    households,
+    images,
+    navigate,
+    questions,
+    recordings,
+    robots,
+    teach,
+    tours,
+)
 from server.api.worker import WorkerHeader
 from server.config import Settings
 from server.errors import DomainError, TooMany
@@ -121,10 +130,13 @@ def create_app(
     *,
     navigation: NavigationParams | None = None,
     clock: Callable[[], float] = time.monotonic,
+    wall_clock: Callable[[], float] = time.time,
 ) -> FastAPI:
     """The FastAPI application for ``settings`` (database, admin token, limits);
     ``navigation`` tunes the navigation core (defaults documented in NavigationParams);
-    ``clock`` is what the rate limits read the time from (seconds, monotonic)."""
+    ``clock`` is what the rate limits read the time from (seconds, monotonic);
+    ``wall_clock`` (unix seconds) is when the robot's questions are asked and expire (stored,
+    so it must be a wall clock; tests pass their own)."""
     if settings.admin_token is None:
         raise ValueError("settings.admin_token is required (serve generates one when unset)")
     if settings.navigation:
@@ -150,6 +162,7 @@ def create_app(
             file_bytes=round(settings.record_file_mb * 1e6),
         ),
         shared_store=settings.worker_name is not None,  # one of several processes on the file
+        wall_clock=wall_clock,
     )
 
     @asynccontextmanager
@@ -242,7 +255,7 @@ def create_app(
             kind=principal.kind, robot=principal.robot, household=principal.household_name
         )
 
-    for module in (tours, robots, teach, navigate, recordings, images, households):
+    for module in (tours, robots, teach, navigate, questions, recordings, images, households):
         app.include_router(module.router, responses={"4XX": {"model": schemas.ErrorBody}})
     app.add_middleware(
         Guard,

@@ -62,6 +62,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
+    (
+        ("bench", "questions"),
+        "server.bench.questions",
+        "questions while teaching in the simulated homes: asked where, revisits closed",
+    ),
     (("bench", "dashboard"), "web.bench", "robot step latency with and without a browser"),
 )
 

@@ -27,6 +27,13 @@ class Conflict(DomainError):
     code = "conflict"
 
 
+class Gone(DomainError):
+    """It existed but is over (a question past its expiry)."""
+
+    status = 410
+    code = "gone"
+
+
 class Invalid(DomainError):
     status = 422
     code = "invalid"

@@ -130,16 +130,58 @@ class LearnedChange(_Model):
 
     id: int
     tour: int
-    kind: Literal["transitions", "experience", "junction"] = Field(
+    kind: Literal[
+        "transitions", "experience", "junction", "loop_closure", "look_alike", "new_path"
+    ] = Field(
         description="'transitions': the run's motion counts refine the belief's advance per "
         "edge; 'experience': the run's images, added as more appearances of the edges it "
         "drove; 'junction': two paths that leave one place along the same images share one "
-        "edge to a new unnamed junction (POST /tours/{tour}/junctions)"
+        "edge to a new unnamed junction (POST /tours/{tour}/junctions); 'loop_closure': a "
+        "'same_place' question answered yes, the taught path ended at a known place; "
+        "'look_alike': one answered no, the two views are marked as look-alikes; "
+        "'new_path': a 'new_path' question answered yes, an edge found by exploration"
     )
     created_at: float
-    source: str = Field(description="The run it came from: robot, task and when it started.")
+    source: str = Field(
+        description="Where it came from: the run (robot, task, when it started) or the question."
+    )
     summary: str
-    images: int = Field(description="Images of an experience (0 for transitions).")
+    images: int = Field(
+        description="Images of an experience, or of the edge a loop closure or new path added."
+    )
+    edge: int | None = Field(
+        default=None, description="The edge a loop closure or a new path added (removed with it)."
+    )
+
+
+class QuestionPublic(_Model):
+    """A question the robot asks a person (docs/learning.md); answer it with
+    POST /robots/{robot}/questions/{id} before ``expires_at``."""
+
+    id: int
+    robot: str
+    tour: int
+    kind: Literal["same_place", "new_path"] = Field(
+        description="'same_place': while teaching, is the robot at this known place? "
+        "'new_path': keep the way exploration found from one known place to another?"
+    )
+    text: str = Field(description="The question as a person reads it.")
+    location: str = Field(description="The place asked about (a new path's end).")
+    source_location: str | None = Field(description="Where the open path or the new path starts.")
+    image_id: int | None = Field(description="The frame the question was asked at, if stored.")
+    match_image_id: int | None = Field(description="The known place's image it matched best.")
+    frames: int = Field(description="Frames of a proposed new path (0 for 'same_place').")
+    confidence: float = Field(description="The belief's mass at the place, 0..1.")
+    created_at: float = Field(description="Unix time, s.")
+    expires_at: float = Field(description="Unix time, s; afterwards an answer is refused (410).")
+    state: Literal["open", "yes", "no", "expired", "withdrawn"]
+    change: int | None = Field(
+        description="The learned change the answer made (GET /tours/{tour}/learned)."
+    )
+
+
+class QuestionAnswer(_Model):
+    answer: Literal["yes", "no"] = Field(description="'yes' or 'no'.")
 
 
 class JunctionSearch(_Model):

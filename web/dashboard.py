@@ -41,7 +41,7 @@ import logging
 import time
 import warnings
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import viser
 from pydantic import ValidationError
@@ -70,6 +70,7 @@ from web.panels import (
     inert,
     learned_text,
     over_time_data,
+    questions_text,
     status_text,
     teaching_text,
     tour_id_of,
@@ -148,6 +149,7 @@ class Dashboard:
         self._chosen = False  # the robot in the selector was picked by a user
         self._assigning = False
         self._sources_at = -1e9
+        self._question: tuple[str, int] | None = None  # (robot, id) the buttons answer
 
     # --- lifecycle ------------------------------------------------------------------------
 
@@ -248,6 +250,8 @@ class Dashboard:
         controls.mark.on_click(self._on_mark)
         controls.finish.on_click(self._on_finish)
         controls.abort.on_click(self._on_abort)
+        controls.yes.on_click(lambda event: self._on_answer(event, "yes"))
+        controls.no.on_click(lambda event: self._on_answer(event, "no"))
         server.on_client_connect(lambda _: self.publisher.poke())
         return controls
 
@@ -376,6 +380,30 @@ class Dashboard:
 
         self._act(event, "Abort", call)
 
+    def _on_answer(self, event: viser.GuiEvent[Any], answer: Literal["yes", "no"]) -> None:
+        shown = self._question
+
+        def call(robot: str) -> str:
+            if shown is None or shown[0] != robot:
+                raise DomainError(f"robot {robot!r} has asked nothing to answer")
+            done = self.services.questions.answer(
+                robot, shown[1], schemas.QuestionAnswer(answer=answer)
+            )
+            change = "" if done.change is None else f" (learned change #{done.change})"
+            return f'{robot}: answered {answer} to "{done.text}"{change}'
+
+        self._act(event, "Yes" if answer == "yes" else "No", call)
+
+    def _questions(self, robot: str | None) -> list[schemas.QuestionPublic]:
+        """The robot's open questions, when it is this dashboard's household's."""
+        if robot is None:
+            return []
+        try:
+            self._check_owned(robot)
+            return self.services.questions.open_questions(robot)
+        except DomainError:
+            return []
+
     # --- rendering (publisher thread only) ------------------------------------------------
 
     def _put(self, key: str, handle: Any, attr: str, value: object) -> None:
@@ -423,6 +451,11 @@ class Dashboard:
             status += "\n\n" + distinctiveness_text(snap.graph)
         self._put_markdown("status", c.status, status)
         self._put_markdown("teaching", c.teaching, teaching_text(snap))
+        asked = self._questions(snap.robot)
+        self._question = None if not asked else (asked[0].robot, asked[0].id)
+        self._put_markdown("question", c.question, questions_text(asked))
+        self._put("question.visible.yes", c.yes, "visible", bool(asked))
+        self._put("question.visible.no", c.no, "visible", bool(asked))
         teaching = snap.teaching is not None
         for k, handle in enumerate(c.teach_inputs):
             self._put(f"teach.visible.{k}", handle, "visible", teaching)

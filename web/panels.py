@@ -26,7 +26,7 @@ from web.imagery import MAP_SIZE, behaviour_strip, captioned, placeholder, side_
 
 if TYPE_CHECKING:
     from server.domain import TourGraph
-    from server.schemas import LearnedChange
+    from server.schemas import LearnedChange, QuestionPublic
     from web.publisher import Snapshot, StepView
 
 FloatArray = npt.NDArray[np.float64]
@@ -58,6 +58,9 @@ class Controls:
     abort: viser.GuiButtonHandle
     map: viser.GuiImageHandle
     learned: viser.GuiMarkdownHandle
+    question: viser.GuiMarkdownHandle
+    yes: viser.GuiButtonHandle
+    no: viser.GuiButtonHandle
     images: viser.GuiImageHandle
     action: viser.GuiMarkdownHandle
     strip: viser.GuiImageHandle
@@ -139,6 +142,14 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
             format="png",
         )
 
+    with gui.add_folder("Questions"):
+        question = gui.add_markdown(questions_text(()))
+        yes = gui.add_button(
+            "Yes", color="green", hint="POST /robots/{robot}/questions/{id} yes", visible=False
+        )
+        no = gui.add_button(
+            "No", color="red", hint="POST /robots/{robot}/questions/{id} no", visible=False
+        )
     with gui.add_folder("Learned", expand_by_default=False):
         learned = gui.add_markdown(learned_text(()))
 
@@ -187,6 +198,9 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
         abort=abort,
         map=the_map,
         learned=learned,
+        question=question,
+        yes=yes,
+        no=no,
         images=images,
         action=action,
         strip=strip,
@@ -198,6 +212,24 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
         over_time=over_time,
         panel=panel,
     )
+
+
+def questions_text(questions: Sequence[QuestionPublic], now: float | None = None) -> str:
+    """The selected robot's open questions (docs/learning.md): the oldest, which the Yes and
+    No buttons answer, then how many more wait (markdown; the dashboard puts it through
+    :func:`inert`)."""
+    if not questions:
+        return "*No question from the robot.*"
+    first = questions[0]
+    left = "" if now is None else f" (answer within {max(0.0, first.expires_at - now):.0f} s)"
+    lines = [f"**{first.text}**{left}"]  # made inert where it is shown
+    if first.kind == "same_place":
+        lines.append("Yes joins the path taught to that place; no keeps them apart.")
+    else:
+        lines.append("Yes adds the way found as a path of the map; no discards it.")
+    if len(questions) > 1:
+        lines.append(f"{len(questions) - 1} more waiting.")
+    return "\n\n".join(lines)
 
 
 def learned_text(changes: Sequence[LearnedChange]) -> str:

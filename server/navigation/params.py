@@ -13,6 +13,7 @@ import numpy as np
 from server.belief.junctions import JunctionParams
 from server.belief.mcl import MclParams
 from server.belief.model import TransitionParams
+from server.belief.questions import QuestionParams
 from server.belief.tracker import TrackerParams
 from server.motion import MotionParams
 from server.policy.costs import CostParams
@@ -254,6 +255,7 @@ class NavigationParams:
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     mcl: MclParams = field(default_factory=MclParams)
     learning: LearningParams = field(default_factory=LearningParams)
+    questions: QuestionParams = field(default_factory=QuestionParams)
 
     def __post_init__(self) -> None:
         if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):

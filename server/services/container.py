@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -15,6 +17,7 @@ from server.services.households import HouseholdService, Identities, LoginParams
 from server.services.junctions import JunctionService
 from server.services.learning import LearningService
 from server.services.navigation import NavigationService
+from server.services.questions import QuestionService
 from server.services.teaching import TeachingService
 from server.services.tours import RobotService, TourService
 from server.storage.repo import Repo
@@ -34,6 +37,7 @@ class Services:
     recordings: Recorder
     learning: LearningService
     junctions: JunctionService
+    questions: QuestionService
 
     @classmethod
     def build(
@@ -49,10 +53,12 @@ class Services:
         record_all: bool = False,
         retention: Retention | None = None,
         shared_store: bool = False,
+        wall_clock: Callable[[], float] = time.time,
     ) -> Services:
         """``recordings``: the folder of the recordings (created on first use);
         ``record_all``: record every teaching tour and navigation task; ``shared_store``: other
-        server processes write to the same database (:class:`NavigationService`)."""
+        server processes write to the same database (:class:`NavigationService`);
+        ``wall_clock``: unix seconds, when questions are asked and expire."""
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
             repo,
@@ -74,6 +80,11 @@ class Services:
         teaching.observers.append(recorder)
         learning = LearningService(repo, nav.params, nav.tour_changed)
         nav.observers.append(learning)
+        questions = QuestionService(
+            repo, teaching, nav, limits, nav.params.questions, clock=wall_clock
+        )
+        nav.observers.append(questions)
+        teaching.observers.append(questions)
         identities = Identities(repo)
         return cls(
             repo=repo,
@@ -88,6 +99,7 @@ class Services:
             recordings=recorder,
             learning=learning,
             junctions=JunctionService(repo, nav, nav.params.learning.junctions),
+            questions=questions,
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:

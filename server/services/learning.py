@@ -45,15 +45,12 @@ def change_public(row: LearnedChangeRow) -> schemas.LearnedChange:
     return schemas.LearnedChange(
         id=row.id,
         tour=row.tour_id,
-        kind="junction"
-        if row.kind == "junction"
-        else "transitions"
-        if row.kind == "transitions"
-        else "experience",
+        kind=row.kind,  # type: ignore[arg-type]  # repo.LEARNED_KINDS, checked on insert
         created_at=row.created_at,
         source=row.source,
         summary=row.summary,
         images=row.images,
+        edge=row.edge_id,
     )
 
 

@@ -195,6 +195,14 @@ class NavigationService:
                 self._built_from[tour_id] = changes
             return rt
 
+    def latest_runtime(self, tour_id: int) -> TourRuntime:
+        """The tour's runtime as last built, even when the tour changed since (its rebuild is
+        due in the background, :meth:`tour_changed`): for work that must not wait for a build,
+        such as asking questions while teaching. Built now only when there is none yet."""
+        with self._lock:
+            rt = self._runtimes.get(tour_id)
+        return rt if rt is not None else self.runtime(tour_id)
+
     def _check_stamp(self, tour_id: int, *, always: bool) -> None:
         """Whether another process changed the tour since its runtime was built (at most every
         :data:`STAMP_CHECK_S` unless ``always``); if so, as if teaching here had changed it."""
@@ -366,6 +374,11 @@ class NavigationService:
                     )
                 )
         return session
+
+    def tour_of(self, robot: str) -> int:
+        """The tour the robot's live session navigates (KeyError when it has none)."""
+        with self._lock:
+            return self._tour_of[robot]
 
     def is_navigating(self, robot: str) -> bool:
         """Whether the robot has a task underway (the persisted row answers for a robot with no

@@ -292,7 +292,114 @@ def learned_changes(db: Any) -> None:
     db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
 
 
-@migration(7, rebuilds=True)
+@migration(6)
+def questions(db: Any) -> None:
+    """Questions the robot asks a person (issue 25 parts 1 and 5, docs/learning.md), and the
+    learned changes their answers make.
+
+    ``questions``: one row per question of a robot on a tour, its ``kind`` ('same_place':
+    "are we at the kitchen?" while teaching; 'new_path': "keep the way I just found from the
+    hall to the kitchen?"), the place asked about (``location_id``; for a new path its end)
+    and where the robot came from (``source_location_id``), the frame asked at and the
+    place's image it matched (``image_id``, ``match_image_id``), when it was asked and when it
+    expires (unix seconds), its ``state`` ('open', 'yes', 'no', 'expired', 'withdrawn') and
+    the change its answer made (``change_id``). ``question_frames``: the frames of a proposed
+    new path until it is answered. ``look_alikes``: a 'no' answer's pair of images that looked
+    like the same place but are not.
+
+    ``learned_changes`` is rebuilt (portable SQL: create, copy, drop, rename, with
+    ``experiences`` that references it) to drop the CHECK on ``kind`` (the kinds are listed in
+    :data:`server.storage.repo.LEARNED_KINDS`; a CHECK would need a rebuild for every new
+    kind) and to add ``edge_id``: the edge a loop closure or a new path added, removed with
+    the change. Every row is kept."""
+    db.execute(
+        """
+        CREATE TABLE learned_changes_v6 (
+            id INTEGER PRIMARY KEY,
+            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
+            kind TEXT NOT NULL,                -- repo.LEARNED_KINDS
+            created_at REAL NOT NULL,
+            source TEXT NOT NULL,              -- the run or question it came from
+            summary TEXT NOT NULL,             -- one line for people
+            counts BLOB,                       -- 'transitions': float64 (3, n_edges)
+            edge_id INTEGER REFERENCES edges(id)  -- 'loop_closure', 'new_path': the edge added
+        )"""
+    )
+    db.execute(
+        "INSERT INTO learned_changes_v6 (id, tour_id, kind, created_at, source, summary, counts) "
+        "SELECT id, tour_id, kind, created_at, source, summary, counts FROM learned_changes"
+    )
+    db.execute(
+        """
+        CREATE TABLE experiences_v6 (
+            id INTEGER PRIMARY KEY,
+            change_id INTEGER NOT NULL REFERENCES learned_changes_v6(id) ON DELETE CASCADE,
+            image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
+            features BLOB NOT NULL,            -- ImageFeatures.to_bytes()
+            created_at REAL NOT NULL
+        )"""
+    )
+    db.execute(
+        "INSERT INTO experiences_v6 (id, change_id, image_id, features, created_at) "
+        "SELECT id, change_id, image_id, features, created_at FROM experiences"
+    )
+    db.execute("DROP TABLE experiences")
+    db.execute("DROP TABLE learned_changes")
+    db.execute("ALTER TABLE learned_changes_v6 RENAME TO learned_changes")
+    db.execute("ALTER TABLE experiences_v6 RENAME TO experiences")
+    db.execute("CREATE INDEX learned_changes_tour ON learned_changes(tour_id)")
+    db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
+    db.execute(
+        """
+        CREATE TABLE questions (
+            id INTEGER PRIMARY KEY,
+            robot TEXT NOT NULL REFERENCES robots(name) ON DELETE CASCADE,
+            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
+            kind TEXT NOT NULL,                -- 'same_place' | 'new_path'
+            text TEXT NOT NULL,                -- the question as a person reads it
+            location_id INTEGER NOT NULL REFERENCES locations(id) ON DELETE CASCADE,
+            source_location_id INTEGER REFERENCES locations(id) ON DELETE CASCADE,
+            image_id INTEGER REFERENCES images(id) ON DELETE SET NULL,
+            match_image_id INTEGER REFERENCES images(id) ON DELETE SET NULL,
+            confidence REAL NOT NULL,          -- the belief's mass at the place, 0..1
+            created_at REAL NOT NULL,          -- unix time, s
+            expires_at REAL NOT NULL,          -- unix time, s
+            state TEXT NOT NULL,               -- open | yes | no | expired | withdrawn
+            answered_at REAL,
+            change_id INTEGER REFERENCES learned_changes(id) ON DELETE SET NULL
+        )"""
+    )
+    db.execute("CREATE INDEX questions_robot ON questions(robot, state)")
+    db.execute(
+        """
+        CREATE TABLE question_frames (
+            id INTEGER PRIMARY KEY,
+            question_id INTEGER NOT NULL REFERENCES questions(id) ON DELETE CASCADE,
+            seq INTEGER NOT NULL,
+            timestamp REAL NOT NULL,           -- capture time, s
+            v REAL NOT NULL,                   -- m/s
+            w REAL NOT NULL,                   -- rad/s
+            width INTEGER NOT NULL,
+            height INTEGER NOT NULL,
+            jpeg BLOB NOT NULL,
+            features BLOB                      -- engine features
+        )"""
+    )
+    db.execute("CREATE INDEX question_frames_question ON question_frames(question_id, seq)")
+    db.execute(
+        """
+        CREATE TABLE look_alikes (
+            id INTEGER PRIMARY KEY,
+            change_id INTEGER NOT NULL REFERENCES learned_changes(id) ON DELETE CASCADE,
+            location_id INTEGER NOT NULL REFERENCES locations(id) ON DELETE CASCADE,
+            image_id INTEGER REFERENCES images(id) ON DELETE SET NULL,  -- the frame
+            match_image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE
+        )"""
+    )
+    db.execute("CREATE INDEX look_alikes_location ON look_alikes(location_id)")
+
+
+@migration(7)
 def junctions(db: Any) -> None:
     """Junctions learned from shared path prefixes (issue 25 part 2, docs/learning.md): a
     learned change of kind 'junction' refines the tour's graph when its runtime is built; the
@@ -300,24 +407,8 @@ def junctions(db: Any) -> None:
     edges it splits named by their first image (``keep_image_id``: the edge whose shared images
     are kept, ``other_image_id``: the edge whose shared images are mapped onto them), how many
     images of each are shared and ``mapping`` (int32 ``(other_shared,)``: the index among the
-    kept shared images each mapped image stands for).
-
-    Stand-in for branch i25-ask's migration 6, which rebuilds ``learned_changes`` without the
-    CHECK on ``kind``: while that CHECK is there (this branch alone), the table is rebuilt the
-    same way (portable statements: create, copy, drop, rename, with ``experiences``, which
-    references it; on PostgreSQL, where main's store runs these migrations too, the constraint
-    is dropped in place). Once migration 6 has run, the CHECK is gone and this part does
-    nothing."""
-    if getattr(db, "dialect", "sqlite") == "postgresql":  # main's PostgreSQL store
-        db.execute(
-            "ALTER TABLE learned_changes DROP CONSTRAINT IF EXISTS learned_changes_kind_check"
-        )
-    else:
-        sql = db.execute(
-            "SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'learned_changes'"
-        ).fetchone()
-        if sql is not None and "CHECK (kind IN" in sql[0]:
-            _learned_changes_without_kind_check(db)
+    kept shared images each mapped image stands for). The kind needs no change of
+    ``learned_changes``: migration 6 took the CHECK on ``kind`` away."""
     db.execute(
         """
         CREATE TABLE junctions (
@@ -331,45 +422,6 @@ def junctions(db: Any) -> None:
         )"""
     )
     db.execute("CREATE INDEX junctions_change ON junctions(change_id)")
-
-
-def _learned_changes_without_kind_check(db: Any) -> None:
-    db.execute(
-        """
-        CREATE TABLE learned_changes_v7 (
-            id INTEGER PRIMARY KEY,
-            tour_id INTEGER NOT NULL REFERENCES tours(id) ON DELETE CASCADE,
-            kind TEXT NOT NULL,                -- repo.LEARNED_KINDS
-            created_at REAL NOT NULL,
-            source TEXT NOT NULL,
-            summary TEXT NOT NULL,
-            counts BLOB
-        )"""
-    )
-    db.execute(
-        "INSERT INTO learned_changes_v7 (id, tour_id, kind, created_at, source, summary, counts) "
-        "SELECT id, tour_id, kind, created_at, source, summary, counts FROM learned_changes"
-    )
-    db.execute(
-        """
-        CREATE TABLE experiences_v7 (
-            id INTEGER PRIMARY KEY,
-            change_id INTEGER NOT NULL REFERENCES learned_changes_v7(id) ON DELETE CASCADE,
-            image_id INTEGER NOT NULL REFERENCES images(id) ON DELETE CASCADE,
-            features BLOB NOT NULL,
-            created_at REAL NOT NULL
-        )"""
-    )
-    db.execute(
-        "INSERT INTO experiences_v7 (id, change_id, image_id, features, created_at) "
-        "SELECT id, change_id, image_id, features, created_at FROM experiences"
-    )
-    db.execute("DROP TABLE experiences")
-    db.execute("DROP TABLE learned_changes")
-    db.execute("ALTER TABLE learned_changes_v7 RENAME TO learned_changes")
-    db.execute("ALTER TABLE experiences_v7 RENAME TO experiences")
-    db.execute("CREATE INDEX learned_changes_tour ON learned_changes(tour_id)")
-    db.execute("CREATE INDEX experiences_image ON experiences(image_id)")
 
 
 def current_version(db: Any) -> int:

@@ -141,9 +141,10 @@ class NavigationRow:
 
 @dataclass(frozen=True)
 class LearnedChangeRow:
-    """One learned change of a tour (migrations 5, 7): ``kind`` 'transitions', 'experience' or
-    'junction' (its refinement in table ``junctions``),
-    ``images``: the experience's images (0 for transitions)."""
+    """One learned change of a tour (migrations 5, 6 and 7): ``kind`` one of
+    :data:`LEARNED_KINDS` (a 'junction' keeps its refinement in table ``junctions``);
+    ``images``: the experience's images, or the images of the edge a loop closure or a new path
+    added (0 otherwise); ``edge_id``: that edge."""
 
     id: int
     tour_id: int
@@ -152,6 +153,52 @@ class LearnedChangeRow:
     source: str
     summary: str
     images: int
+    edge_id: int | None = None
+
+
+LEARNED_KINDS = ("transitions", "experience", "junction", "loop_closure", "look_alike", "new_path")
+"""What a learned change can be: learned transitions and experiences (repeat runs), a junction
+(shared path prefixes, POST /tours/{id}/junctions), a loop closure or a look-alike pair (a
+'same_place' question answered yes or no), a new path (a 'new_path' question answered yes)."""
+
+QUESTION_STATES = ("open", "yes", "no", "expired", "withdrawn")
+"""A question is open until answered (yes/no), past its expiry (expired), or made moot
+(withdrawn: its robot marked a place, finished or aborted teaching meanwhile)."""
+
+
+@dataclass(frozen=True)
+class QuestionRow:
+    """One question (migration 6); times are unix seconds."""
+
+    id: int
+    robot: str
+    tour_id: int
+    kind: str
+    text: str
+    location_id: int
+    source_location_id: int | None
+    image_id: int | None
+    match_image_id: int | None
+    confidence: float
+    created_at: float
+    expires_at: float
+    state: str
+    answered_at: float | None
+    change_id: int | None
+
+
+@dataclass(frozen=True)
+class FrameRow:
+    """A frame kept for a proposed new path: capture time (s), odometry (m/s, rad/s), size,
+    the JPEG as sent and the engine features."""
+
+    timestamp: float
+    v: float
+    w: float
+    width: int
+    height: int
+    jpeg: bytes
+    features: bytes | None
 
 
 class Repo:
@@ -717,15 +764,20 @@ class Repo:
         counts: bytes | None = None,
         experiences: Sequence[tuple[int, bytes]] = (),
         max_per_image: int | None = None,
+        edge_id: int | None = None,
     ) -> int:
         """Store one change with its ``experiences`` (``(image id, features)``); with
         ``max_per_image``, the oldest experiences of an image beyond it are dropped (their
-        change keeps its other images). Returns the change's id."""
+        change keeps its other images); ``edge_id``: the edge the change added (removed with
+        it). Returns the change's id."""
+        if kind not in LEARNED_KINDS:
+            raise ValueError(f"unknown learned change kind {kind!r}")
         with self.transaction():
             change = self._insert(
-                "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary, counts) "
-                "VALUES (?, ?, ?, ?, ?, ?)",
-                (tour_id, kind, now, source, summary, counts),
+                "INSERT INTO learned_changes "
+                "(tour_id, kind, created_at, source, summary, counts, edge_id) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (tour_id, kind, now, source, summary, counts, edge_id),
             )
             for image_id, blob in experiences:
                 self._x(
@@ -745,17 +797,21 @@ class Repo:
         """The tour's learned changes, oldest first, each with its number of images."""
         rows = self._q(
             "SELECT c.id, c.tour_id, c.kind, c.created_at, c.source, c.summary, "
-            "(SELECT COUNT(*) FROM experiences e WHERE e.change_id = c.id) "
-            "FROM learned_changes c WHERE c.tour_id = ? ORDER BY c.id",
+            "(SELECT COUNT(*) FROM experiences e WHERE e.change_id = c.id) + "
+            "(SELECT COUNT(*) FROM images i WHERE c.edge_id IS NOT NULL "
+            "AND i.edge_id = c.edge_id), "
+            "c.edge_id FROM learned_changes c WHERE c.tour_id = ? ORDER BY c.id",
             (tour_id,),
         )
         return [LearnedChangeRow(*r) for r in rows]
 
     def remove_learned_change(self, tour_id: int, change_id: int) -> None:
-        """Delete the change and its experiences; NotFound when the tour has no such change."""
+        """Delete the change and what it added: its experiences, its look-alike pairs, the edge
+        it added with that edge's images; NotFound when the tour has no such change."""
         with self.transaction():
             rows = self._q(
-                "SELECT id FROM learned_changes WHERE id = ? AND tour_id = ?", (change_id, tour_id)
+                "SELECT edge_id FROM learned_changes WHERE id = ? AND tour_id = ?",
+                (change_id, tour_id),
             )
             if not rows:
                 raise NotFound(
@@ -763,6 +819,192 @@ class Repo:
                     f"GET /tours/{tour_id}/learned lists them"
                 )
             self._x("DELETE FROM learned_changes WHERE id = ?", (change_id,))
+            edge_id = rows[0][0]
+            if edge_id is not None:
+                self._x("DELETE FROM images WHERE edge_id = ?", (edge_id,))
+                self._x("DELETE FROM edges WHERE id = ?", (edge_id,))
+
+    # --- questions (migration 6) ----------------------------------------------------------
+
+    def add_question(
+        self,
+        *,
+        robot: str,
+        tour_id: int,
+        kind: str,
+        text: str,
+        location_id: int,
+        source_location_id: int | None,
+        image_id: int | None,
+        match_image_id: int | None,
+        confidence: float,
+        now: float,
+        expires_at: float,
+        frames: Sequence[FrameRow] = (),
+    ) -> int:
+        """Store an open question (with the frames of a proposed new path); its id."""
+        with self.transaction():
+            question = self._insert(
+                "INSERT INTO questions (robot, tour_id, kind, text, location_id, "
+                "source_location_id, image_id, match_image_id, confidence, created_at, "
+                "expires_at, state) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'open')",
+                (
+                    robot,
+                    tour_id,
+                    kind,
+                    text,
+                    location_id,
+                    source_location_id,
+                    image_id,
+                    match_image_id,
+                    float(confidence),
+                    now,
+                    expires_at,
+                ),
+            )
+            for seq, f in enumerate(frames):
+                self._x(
+                    "INSERT INTO question_frames (question_id, seq, timestamp, v, w, width, "
+                    "height, jpeg, features) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (question, seq, f.timestamp, f.v, f.w, f.width, f.height, f.jpeg, f.features),
+                )
+        return question
+
+    _QUESTION_COLUMNS = (
+        "id, robot, tour_id, kind, text, location_id, source_location_id, image_id, "
+        "match_image_id, confidence, created_at, expires_at, state, answered_at, change_id"
+    )
+
+    def question(self, question_id: int) -> QuestionRow | None:
+        rows = self._q(
+            f"SELECT {self._QUESTION_COLUMNS} FROM questions WHERE id = ?", (question_id,)
+        )
+        return QuestionRow(*rows[0]) if rows else None
+
+    def questions(self, robot: str, state: str | None = "open") -> list[QuestionRow]:
+        """The robot's questions in ``state`` (``None``: all), oldest first."""
+        where, params = "robot = ?", [robot]
+        if state is not None:
+            where, params = "robot = ? AND state = ?", [robot, state]
+        rows = self._q(
+            f"SELECT {self._QUESTION_COLUMNS} FROM questions WHERE {where} ORDER BY id", params
+        )
+        return [QuestionRow(*r) for r in rows]
+
+    def close_question(
+        self, question_id: int, state: str, *, now: float, change_id: int | None = None
+    ) -> None:
+        """Give an open question its final ``state``; its frames are no longer needed."""
+        if state not in QUESTION_STATES or state == "open":
+            raise ValueError(f"cannot close a question as {state!r}")
+        with self.transaction():
+            self._x(
+                "UPDATE questions SET state = ?, answered_at = ?, change_id = ? "
+                "WHERE id = ? AND state = 'open'",
+                (state, now, change_id, question_id),
+            )
+            self._x("DELETE FROM question_frames WHERE question_id = ?", (question_id,))
+
+    def expire_questions(self, robot: str, now: float) -> int:
+        """Close the robot's open questions whose time is up; how many."""
+        due = self._q(
+            "SELECT id FROM questions WHERE robot = ? AND state = 'open' AND expires_at <= ?",
+            (robot, now),
+        )
+        if due:  # no write (no transaction) when nothing is due
+            with self.transaction():
+                for (question_id,) in due:
+                    self.close_question(question_id, "expired", now=now)
+        return len(due)
+
+    def withdraw_questions(self, robot: str, kind: str, now: float) -> int:
+        """Close the robot's open questions of ``kind`` as withdrawn; how many."""
+        due = self._q(
+            "SELECT id FROM questions WHERE robot = ? AND state = 'open' AND kind = ?",
+            (robot, kind),
+        )
+        if due:
+            with self.transaction():
+                for (question_id,) in due:
+                    self.close_question(question_id, "withdrawn", now=now)
+        return len(due)
+
+    def set_question_change(self, question_id: int, change_id: int) -> None:
+        self._x("UPDATE questions SET change_id = ? WHERE id = ?", (change_id, question_id))
+
+    def question_frame_count(self, question_id: int) -> int:
+        rows = self._q("SELECT COUNT(*) FROM question_frames WHERE question_id = ?", (question_id,))
+        return int(rows[0][0])
+
+    def question_frames(self, question_id: int) -> list[FrameRow]:
+        rows = self._q(
+            "SELECT timestamp, v, w, width, height, jpeg, features FROM question_frames "
+            "WHERE question_id = ? ORDER BY seq",
+            (question_id,),
+        )
+        return [
+            FrameRow(t, v, w, wd, ht, bytes(j), None if f is None else bytes(f))
+            for t, v, w, wd, ht, j, f in rows
+        ]
+
+    def add_edge_with_images(
+        self, tour_id: int, source_id: int, target_id: int, frames: Sequence[FrameRow]
+    ) -> int:
+        """A new edge holding ``frames`` in order (a path found by exploration); its id."""
+        with self.transaction():
+            edge = self.add_edge(tour_id, source_id, target_id)
+            for seq, f in enumerate(frames):
+                self._x(
+                    "INSERT INTO images (tour_id, edge_id, seq, timestamp, v, w, width, height, "
+                    "jpeg, features) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        tour_id,
+                        edge,
+                        seq,
+                        f.timestamp,
+                        f.v,
+                        f.w,
+                        f.width,
+                        f.height,
+                        f.jpeg,
+                        f.features,
+                    ),
+                )
+        return edge
+
+    def add_look_alike(
+        self, change_id: int, location_id: int, image_id: int | None, match_image_id: int
+    ) -> None:
+        self._x(
+            "INSERT INTO look_alikes (change_id, location_id, image_id, match_image_id) "
+            "VALUES (?, ?, ?, ?)",
+            (change_id, location_id, image_id, match_image_id),
+        )
+
+    def look_alike_images(self, location_id: int) -> set[int]:
+        """The images of ``location_id`` a person said a frame elsewhere only looked like."""
+        rows = self._q(
+            "SELECT match_image_id FROM look_alikes WHERE location_id = ?", (location_id,)
+        )
+        return {int(r[0]) for r in rows}
+
+    def declined_locations(self, robot: str) -> set[int]:
+        """Places the robot asked about on its open path and was told 'no' (while that
+        answer's look-alike change exists: undoing it lets the question be asked again)."""
+        rows = self._q(
+            "SELECT q.location_id FROM questions q JOIN images i ON i.id = q.image_id "
+            "WHERE q.robot = ? AND q.kind = 'same_place' AND q.state = 'no' "
+            "AND q.change_id IS NOT NULL AND i.pending_robot = ?",
+            (robot, robot),
+        )
+        return {int(r[0]) for r in rows}
+
+    def last_pending_image(self, robot: str) -> int | None:
+        """The id of the newest image on the robot's open path."""
+        rows = self._q(
+            "SELECT id FROM images WHERE pending_robot = ? ORDER BY seq DESC LIMIT 1", (robot,)
+        )
+        return int(rows[0][0]) if rows else None
 
     def add_junction_change(
         self,

@@ -65,6 +65,8 @@ def example(schema: dict[str, Any]) -> Any:
     schema = _resolve(schema)
     if "anyOf" in schema:
         return example(next(s for s in schema["anyOf"] if s.get("type") != "null"))
+    if "enum" in schema:  # e.g. an answer 'yes' | 'no'
+        return schema["enum"][0]
     kind = schema.get("type")
     if kind == "object":
         props = schema.get("properties", {})
@@ -191,6 +193,18 @@ RULES: dict[str, dict[str, int | str]] = {
         "other_login": 404,
         "admin": 403,
     },
+    "robot_missing_child": {  # a question of robot alice that does not exist: 404 for every
+        # caller that may act for alice (the answer names the question), as for the others
+        "none": 401,
+        "wrong": 401,
+        "revoked": 401,
+        "own_robot": 404,
+        "peer_robot": 403,
+        "other_robot": 404,
+        "login": 404,
+        "other_login": 404,
+        "admin": 403,
+    },
 }
 ROUTE_RULES: dict[tuple[str, str], str] = {
     ("GET", "/health"): "public",
@@ -215,6 +229,8 @@ ROUTE_RULES: dict[tuple[str, str], str] = {
     ("POST", "/tours/{tour_id}/junctions"): "household_object",
     ("GET", "/robots/{robot}/recordings"): "drive_robot",  # a robot's recordings: as driving it
     ("GET", "/robots/{robot}/recordings/{name}"): "drive_robot",
+    ("GET", "/robots/{robot}/questions"): "drive_robot",  # the robot's questions: as driving it
+    ("POST", "/robots/{robot}/questions/{question_id}"): "robot_missing_child",
 }
 """Every route's rule; the routes under /robots/{robot}/ not named here drive the robot."""
 

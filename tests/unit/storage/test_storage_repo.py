@@ -551,3 +551,49 @@ def test_a_schema_5_database_upgrades_losing_nothing_and_keeps_junctions(
         assert repo.db.execute("SELECT count(*) FROM junctions").fetchone()[0] == 0
     finally:
         repo.close()
+
+
+def test_a_schema_5_database_upgrades_to_questions_losing_nothing(store: Path | str) -> None:
+    """Schema 5 -> 6 (questions; learned_changes rebuilt): every learned change and experience
+    kept, experiences still cascade with their change, any kind of LEARNED_KINDS is accepted."""
+    db = _old(store, 5)
+    x = db.execute
+    x("INSERT INTO tours (id, household_id, name, created_at) VALUES (7, 1, 'home', 3.0)")
+    x("INSERT INTO locations (id, tour_id, name, created_at) VALUES (1, 7, 'hall', 4.0)")
+    x(
+        "INSERT INTO images (id, tour_id, location_id, seq, timestamp, v, w, width, height, "
+        "jpeg) VALUES (5, 7, 1, 0, 0.0, 0.0, 0.0, 64, 48, ?)",
+        (make_jpeg(),),
+    )
+    x(
+        "INSERT INTO learned_changes (id, tour_id, kind, created_at, source, summary, counts) "
+        "VALUES (3, 7, 'experience', 9.0, 'run', 's', NULL), "
+        "(4, 7, 'transitions', 9.5, 'run', 'c', ?)",
+        (b"\x00",),
+    )
+    x(
+        "INSERT INTO experiences (id, change_id, image_id, features, created_at) "
+        "VALUES (11, 3, 5, ?, 9.0)",
+        (b"\x01\x02",),
+    )
+    before = _rows(db, ("learned_changes", "experiences"))
+    db.close()
+    repo = Repo(store)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 6
+        assert _rows(repo.db, before) == before  # the columns they had, every row
+        assert [(r.id, r.kind, r.images, r.edge_id) for r in repo.learned_changes(7)] == [
+            (3, "experience", 1, None),
+            (4, "transitions", 0, None),
+        ]
+        assert repo.integrity_ok()
+        _references_hold(repo)
+        repo.remove_learned_change(7, 3)  # the experience goes with its change
+        assert repo.experiences(7) == []
+        with repo.transaction():
+            made = repo.add_learned_change(7, "look_alike", source="q", summary="s", now=1.0)
+        assert made == 5  # past the copied ids, on PostgreSQL too
+        with pytest.raises(ValueError, match="unknown learned change kind"):
+            repo.add_learned_change(7, "guess", source="q", summary="s", now=1.0)
+    finally:
+        repo.close()

@@ -18,6 +18,7 @@ from pydantic import SecretStr
 
 from server import schemas
 from server.services.container import Services
+from server.storage.repo import FrameRow
 from web.dashboard import Dashboard
 from web.imagery import BEHAVIOUR_COLOURS
 from web.panels import NONE
@@ -416,3 +417,48 @@ def test_a_household_timeline_lists_its_own_recordings_only(services: Services) 
         ]
     finally:
         dash.stop()
+
+
+def test_the_robot_s_question_is_answered_with_yes_or_no(
+    services: Services, dash: Dashboard
+) -> None:
+    """The Questions folder shows the selected robot's oldest open question; Yes and No answer
+    it through the question service, as POST /robots/{robot}/questions/{id} does."""
+    tour = teach(services)
+    c = dash.controls
+    assert c is not None
+    dash.refresh()
+    assert "No question" in c.question.content and not c.yes.visible
+    repo = services.repo
+    a, b = (repo.location_by_name(tour, n) for n in ("a", "b"))
+    assert a is not None and b is not None
+    now = services.questions.clock()
+    frames = [FrameRow(float(k), 0.3, 0.0, 64, 48, make_jpeg(500 + k), None) for k in range(3)]
+    for target in (b, a):  # two questions: the oldest is shown first
+        repo.add_question(
+            robot="rover",
+            tour_id=tour,
+            kind="new_path",
+            text=f"Keep the way to <{target}>?",
+            location_id=target,
+            source_location_id=a if target == b else b,
+            image_id=None,
+            match_image_id=None,
+            confidence=0.9,
+            now=now,
+            expires_at=now + 60.0,
+            frames=frames,
+        )
+    dash.refresh()
+    assert f"Keep the way to &lt;{b}&gt;?" in c.question.content and c.yes.visible
+    assert "1 more waiting" in c.question.content
+    click(c.yes)
+    assert "answered yes" in c.message.content and "learned change #" in c.message.content
+    assert [(e.source, e.target) for e in services.tours.graph(tour, 1).edges][-1] == (a, b)
+    dash.refresh()
+    assert f"&lt;{a}&gt;" in c.question.content and "more waiting" not in c.question.content
+    click(c.no)
+    assert "answered no" in c.message.content
+    dash.refresh()
+    assert "No question" in c.question.content and not c.no.visible
+    assert services.questions.open_questions("rover") == []
