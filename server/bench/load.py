@@ -395,6 +395,19 @@ def stage_lines(stages: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def run_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments every run of one invocation shares (:func:`one_run`, and
+    :func:`server.bench.load_cluster.cluster_run` through HAProxy)."""
+    return {
+        "seconds": args.seconds,
+        "warmup_s": args.warmup,
+        "rate_hz": args.rate,
+        "goal": args.goal or corridor_marks()[max(corridor_marks())],
+        "rss_every_s": args.rss_every,
+        "lockstep": args.lockstep,
+    }
+
+
 def meets(result: dict[str, Any], p99_ms: float) -> bool:
     """The run kept up: p99 within ``p99_ms``, no errors, and >= 95 % of the offered frames."""
     return (
@@ -464,13 +477,8 @@ def run(args: argparse.Namespace) -> int:
                     robots,
                     ref=ref,
                     frames=frames,
-                    seconds=args.seconds,
-                    warmup_s=args.warmup,
-                    rate_hz=args.rate,
-                    goal=args.goal or corridor_marks()[max(corridor_marks())],
-                    rss_every_s=args.rss_every,
                     server_env=server_env,
-                    lockstep=args.lockstep,
+                    **run_options(args),
                     profile=args.profile,
                     profile_raw=args.profile_raw,
                     database_url=fresh(),

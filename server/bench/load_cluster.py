@@ -35,6 +35,7 @@ from server.bench.load import (
     drive,
     load_frames,
     meets,
+    run_options,
 )
 from server.process import ADMIN, ServerProcess
 from server.storage.pgserver import PostgresUnavailable
@@ -235,14 +236,9 @@ def _measured(
         processes,
         ref=ref,
         frames=frames,
-        seconds=args.seconds,
-        warmup_s=args.warmup,
-        rate_hz=args.rate,
-        goal=args.goal or corridor_marks()[max(corridor_marks())],
-        rss_every_s=args.rss_every,
         server_env=server_env,
-        lockstep=args.lockstep,
         database_url=database_url,
+        **run_options(args),
     )
     result["meets_target"] = meets(result, args.p99_ms)
     print(describe(result) + ("" if result["meets_target"] else "  [misses target]"))
