@@ -350,24 +350,20 @@ def one_run(
         if spy is not None and profile_raw:
             shutil.copyfile(spy.out, profile_raw)
         alive = server.proc.poll() is None
-    measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
-    errors = [e for log in logs.values() for e in log.errors]
+    figures = client_figures(
+        logs,
+        measure_from=measure_from,
+        robots=robots,
+        rate_hz=rate_hz,
+        seconds=seconds,
+        warmup_s=warmup_s,
+        lockstep=lockstep,
+    )
     after = [mb for (t, mb) in sampler.samples if t >= warmup_s]
-    latency = {k: (v * 1000.0 if k != "n" else v) for k, v in stats(measured).items()}
-    cpu_ms = 1000.0 * (cpu1 - cpu0) / max(len(measured), 1)
+    cpu_ms = 1000.0 * (cpu1 - cpu0) / max(figures["frames"], 1)
     return {
         "robots": robots,
-        "rate_hz": rate_hz,
-        "seconds": seconds,
-        "warmup_s": warmup_s,
-        "offered_fps": robots * rate_hz,
-        "lockstep": lockstep,
-        "fps": len(measured) / seconds,
-        "frames": len(measured),
-        "latency_ms": latency,
-        "errors": len(errors),
-        "error_samples": sorted(set(errors))[:5],
-        "regotos": sum(log.regotos for log in logs.values()),
+        **figures,
         "rss_mb": {
             "idle_after_teaching": rss_idle,
             "first_after_warmup": after[0] if after else float("nan"),
@@ -393,6 +389,37 @@ def stage_lines(stages: dict[str, Any]) -> str:
     ]
     lines.append(f"    ({stages['samples']} running samples, {stages['waiting_samples']} waiting)")
     return "\n".join(lines)
+
+
+def client_figures(
+    logs: dict[str, RobotLog],
+    *,
+    measure_from: float,
+    robots: int,
+    rate_hz: float,
+    seconds: float,
+    warmup_s: float,
+    lockstep: bool,
+) -> dict[str, Any]:
+    """What the robots' clients saw over the measured window (frames sent from
+    ``measure_from``, monotonic s): the run's settings, frames per second, latency in ms,
+    errors and re-sent goals; the figures :func:`one_run` and
+    :func:`server.bench.load_cluster.cluster_run` share."""
+    measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
+    errors = [e for log in logs.values() for e in log.errors]
+    return {
+        "rate_hz": rate_hz,
+        "seconds": seconds,
+        "warmup_s": warmup_s,
+        "offered_fps": robots * rate_hz,
+        "lockstep": lockstep,
+        "fps": len(measured) / seconds,
+        "frames": len(measured),
+        "latency_ms": {k: (v * 1000.0 if k != "n" else v) for k, v in stats(measured).items()},
+        "errors": len(errors),
+        "error_samples": sorted(set(errors))[:5],
+        "regotos": sum(log.regotos for log in logs.values()),
+    }
 
 
 def run_options(args: argparse.Namespace) -> dict[str, Any]:

@@ -27,9 +27,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from server.bench.common import corridor_marks, default_data_dir, stats, write_json
+from server.bench.common import corridor_marks, default_data_dir, write_json
 from server.bench.load import (
     RssSampler,
+    client_figures,
     cpu_seconds,
     databases,
     drive,
@@ -153,8 +154,6 @@ def cluster_run(
             sampler.stop()
         same = cluster_processes(server.proc.pid)
         restarted = [w for w in workers if same.get(w) != pids[w]]
-    measured = [lat for log in logs.values() for (sent, lat) in log.steps if sent >= measure_from]
-    errors = [e for log in logs.values() for e in log.errors]
     per_process: dict[str, dict[str, Any]] = {
         k: {"pid": pids[k], "cpu_pct": 100.0 * (cpu1[k] - cpu0[k]) / max(wall1 - wall0, 1e-9)}
         for k in pids
@@ -165,21 +164,18 @@ def cluster_run(
         per_process[w]["rss_mb_first"] = after[0] if after else float("nan")
         per_process[w]["rss_mb_last"] = after[-1] if after else float("nan")
         per_process[w]["rss_growth"] = after[-1] / after[0] if len(after) >= 2 else float("nan")
-    latency = {k: (v * 1000.0 if k != "n" else v) for k, v in stats(measured).items()}
     return {
         "robots": robots,
         "processes": processes,
-        "rate_hz": rate_hz,
-        "seconds": seconds,
-        "warmup_s": warmup_s,
-        "offered_fps": robots * rate_hz,
-        "lockstep": lockstep,
-        "fps": len(measured) / seconds,
-        "frames": len(measured),
-        "latency_ms": latency,
-        "errors": len(errors),
-        "error_samples": sorted(set(errors))[:5],
-        "regotos": sum(log.regotos for log in logs.values()),
+        **client_figures(
+            logs,
+            measure_from=measure_from,
+            robots=robots,
+            rate_hz=rate_hz,
+            seconds=seconds,
+            warmup_s=warmup_s,
+            lockstep=lockstep,
+        ),
         "per_process": per_process,
         "robot_worker": held,
         "restarted": restarted,
