@@ -597,3 +597,15 @@ def test_a_schema_5_database_upgrades_to_questions_losing_nothing(store: Path | 
             repo.add_learned_change(7, "guess", source="q", summary="s", now=1.0)
     finally:
         repo.close()
+
+
+def test_the_stored_kinds_of_learned_change_are_the_ones_the_api_names() -> None:
+    """repo.LEARNED_KINDS (checked on insert) and the wire schema's Literal are written twice,
+    since the wire schemas import pydantic only: this keeps them equal."""
+    from typing import get_args
+
+    from server import schemas
+    from server.storage.repo import LEARNED_KINDS
+
+    wire = get_args(schemas.LearnedChange.model_fields["kind"].annotation)
+    assert set(wire) == set(LEARNED_KINDS) and len(wire) == len(LEARNED_KINDS)
