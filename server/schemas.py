@@ -497,6 +497,17 @@ class BeliefPublic(_Model):
             "first, then changed light (season, lamps; see docs/localize.md)."
         ),
     )
+    light_change: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "How little this frame looks like the tour in the tour's own light, 0-1: 0 when "
+            "it matches the tour better than the tour's images match its other places (the "
+            "changed-light model then cannot gain trust), 1 when no better than most of them "
+            "(and always 1 with one appearance model; docs/localize.md)."
+        ),
+    )
 
 
 class PosePublic(_Model):

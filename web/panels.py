@@ -340,7 +340,12 @@ def appearance_text(step: StepView) -> str:
         w = step.model_weights[k] if k < len(step.model_weights) else ()
         shown = " ".join(f"{b} {x:.2f}" for b, x in zip(blocks, w, strict=False) if x >= 0.005)
         parts.append(f"{name} **{p:.2f}**" + (f" ({shown})" if shown else ""))
-    return "Appearance: " + "; ".join(parts)
+    change = (
+        f"; light changed **{step.light_change:.2f}** (0: the tour's own light)"
+        if len(step.appearance) > 1
+        else ""
+    )
+    return "Appearance: " + "; ".join(parts) + change
 
 
 def votes_text(votes: dict[str, float]) -> str:

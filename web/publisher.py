@@ -73,6 +73,7 @@ class StepView:
     w: float  # rad/s
     step_ms: float
     appearance: tuple[float, ...] = (1.0,)  # belief over the engine's appearance models
+    light_change: float = 1.0  # the frame's change evidence (server.belief.appearance)
     model_weights: tuple[tuple[float, ...], ...] = ()  # each model's signature block weights
     hypotheses: tuple[tuple[int, float], ...] = ()  # separated hypotheses (disambiguation)
     separating: bool = False  # the action was chosen to tell them apart
@@ -477,6 +478,7 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         w=float(command.w),
         step_ms=float(record.step_ms),
         appearance=tuple(float(x) for x in summary.appearance),
+        light_change=float(summary.light_change),
         hypotheses=() if decision is None else decision.hypotheses,
         separating=False if decision is None else decision.separating,
         mcl=record.mcl,

@@ -26,6 +26,7 @@ import scipy.sparse as sp
 
 from server.belief.appearance import (
     AppearanceParams,
+    gated_scores,
     model_scores,
     posterior,
     update_log_posterior,
@@ -229,6 +230,8 @@ class BeliefSummary:
       match the belief, well below 1 after a kidnapping); ``teleport``: kidnap mixing used.
     * ``appearance``: ``(K,)`` belief over the appearance models whose likelihoods the step
       mixed (:mod:`server.belief.appearance`); ``(1.0,)`` with a single likelihood.
+    * ``light_change``: the change evidence the step weighed the models with, in [0, 1] (0:
+      the frame is seen in the tour's own light; 1 with a single likelihood).
     """
 
     belief: FloatArray
@@ -244,6 +247,7 @@ class BeliefSummary:
     teleport: float = 0.0
     step: int = 0
     appearance: tuple[float, ...] = (1.0,)
+    light_change: float = 1.0
 
     @cached_property
     def along_edge_flat(self) -> FloatArray:
@@ -279,6 +283,7 @@ def summarise(
     step: int = 0,
     state: FloatArray | None = None,
     appearance: tuple[float, ...] = (1.0,),
+    light_change: float = 1.0,
 ) -> BeliefSummary:
     """Build a :class:`BeliefSummary` of a ``(n_fine,)`` belief (vectorised, no state loops).
 
@@ -316,6 +321,7 @@ def summarise(
         teleport=teleport,
         step=step,
         appearance=appearance,
+        light_change=light_change,
     )
 
 
@@ -377,10 +383,19 @@ class Tracker:
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
 
     def step(
-        self, action: Action, likelihood: npt.ArrayLike, *, v: float, dt: float, w: float = 0.0
+        self,
+        action: Action,
+        likelihood: npt.ArrayLike,
+        *,
+        v: float,
+        dt: float,
+        w: float = 0.0,
+        change: float = 1.0,
     ) -> BeliefSummary:
         """Predict with ``action`` (advance from ``v`` m/s, ``w`` rad/s and ``dt`` s), update,
-        summarise."""
+        summarise. ``change``: with one likelihood per appearance model, the frame's change
+        evidence in [0, 1] (:func:`~server.belief.appearance.change_evidence`; 1, the
+        default, lets the models compete freely)."""
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
@@ -407,6 +422,7 @@ class Tracker:
             # trust by agreeing with the stale belief: only forget
             usual = self._fast < 0 or self._fast >= p.localised_evidence * self._slow
             scores = model_scores(moved, lik) if usual else np.ones(len(lik))
+            scores = gated_scores(scores, change)
             self._appearance = update_log_posterior(self._appearance, scores, p.appearance)
             mix = posterior(self._appearance)
             lik = mix @ lik
@@ -456,6 +472,7 @@ class Tracker:
             step=self._steps,
             state=state,
             appearance=tuple(float(x) for x in mix),
+            light_change=float(change) if stacked else 1.0,
         )
         return self._summary
 

@@ -141,6 +141,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "today (default models; docs/localize.md)",
     )
     parser.add_argument(
+        "--no-change-gate",
+        action="store_true",
+        help="with two appearance models: let them compete on every frame, also on frames "
+        "the tour's model recognises in its own light (AppearanceParams.change_gate off; "
+        "docs/localize.md)",
+    )
+    parser.add_argument(
         "--learn-changed",
         type=int,
         default=0,
@@ -531,6 +538,7 @@ class Observation:
 
     likelihood: FloatArray
     best_image: int
+    change: float = 1.0
 
 
 def next_action(decision_action: Action, mode: str) -> Action:
@@ -564,8 +572,10 @@ def replay(
     with ``mcl``, Monte-Carlo localisation beside them. ``observations`` (one per query frame,
     from an earlier replay's :attr:`Replay.observations`) skip the engine; ``advance_scale``
     gives the belief model learned transitions (:mod:`server.belief.learning`)."""
+    from server.belief.appearance import change_evidence
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
+    from server.navigation.runtime import related_states
     from server.policy.costs import CostParams, cost_to_goal
     from server.policy.voting import decide
     from server.vision.features import extract
@@ -577,6 +587,11 @@ def replay(
     goal = graph.n_locations - 1
     costs = cost_to_goal(graph, goal, CostParams())
     fp = index.params.features
+    levels = (
+        index.error_levels(related_states(graph))
+        if observations is None and index.params.changed_weights is not None
+        else np.zeros(0)
+    )
     out = Replay()
     n = len(query_frames)
     smoothed: list[int | None] = [None] * n
@@ -589,15 +604,21 @@ def replay(
             sims = index.query_models(feats, n_states=graph.n_states)
             lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
             best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
+            change = (
+                change_evidence(sims[0].best_error, levels, tracker_params.appearance)
+                if len(sims) > 1
+                else 1.0
+            )
             if mcl is not None:
                 pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
                 out.mcl_xy.append((pose.x, pose.y))
         else:
             t1 = t0
-            lik, best = observations[i].likelihood, observations[i].best_image
-        out.observations.append(Observation(lik, best))
+            obs = observations[i]
+            lik, best, change = obs.likelihood, obs.best_image, obs.change
+        out.observations.append(Observation(lik, best, change))
         t2 = time.perf_counter()
-        summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT)
+        summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, change=change)
         decision = decide(graph, summary.belief, goal, costs)
         t3 = time.perf_counter()
         action = next_action(decision.action, action_mode)
@@ -1092,6 +1113,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the benchmark described in the module doc; 0 on success, 2 on bad input."""
     import cv2
 
+    from server.belief.appearance import AppearanceParams
     from server.belief.model import TransitionParams
     from server.belief.tracker import TrackerParams
     from server.bench._retrieval_impl import limit_blas_threads
@@ -1123,7 +1145,11 @@ def run(args: argparse.Namespace) -> int:
     if args.appearance == "models":
         params = dataclasses.replace(params, changed_weights=CHANGED_WEIGHTS)
     transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
-    tracker_params = TrackerParams(smoother_lag=args.lag, likelihood_power=args.likelihood_power)
+    tracker_params = TrackerParams(
+        smoother_lag=args.lag,
+        likelihood_power=args.likelihood_power,
+        appearance=AppearanceParams(change_gate=not args.no_change_gate),
+    )
     settings = RunSettings(
         args.location_every,
         params,

@@ -183,7 +183,10 @@ class Navigator:
         """No task underway: the belief goes on; the robot stands."""
         features = extract(frame.image, self.params.features)
         similarities, likelihood = self.runtime.observe(features)
-        summary = self.tracker.step(self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt)
+        change = self.runtime.change_evidence(similarities)
+        summary = self.tracker.step(
+            self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt, change=change
+        )
         return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 
     def _navigate(self, task: Task, crew: Crew, frame: Frame, dt: float, wall: float) -> Step:

@@ -9,6 +9,7 @@ from functools import lru_cache
 import numpy as np
 import numpy.typing as npt
 
+from server.belief.appearance import change_evidence
 from server.belief.model import BeliefModel, build_model
 from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
@@ -47,6 +48,7 @@ class TourRuntime:
         self.taught_images = graph.n_images
         self.mapped: dict[int, int] = {}
         self.features = tuple(features)
+        self._levels: tuple[bytes, FloatArray] | None = None  # error_levels(), per weights
         self.index = TourIndex(params.engine)
         if graph.n_images:
             self.index.add(self.features, graph.image_state)
@@ -172,6 +174,36 @@ class TourRuntime:
         per model, for :meth:`Tracker.step` to weigh."""
         sims = self.index.query_models(features, n_states=self.graph.n_states)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
+
+    def change_evidence(self, sims: Sequence[Similarity]) -> float:
+        """The frame's change evidence in [0, 1] for :meth:`Tracker.step` (1 with one
+        appearance model): its best error under the tour's model against the tour's error
+        levels (:func:`server.belief.appearance.change_evidence`)."""
+        if len(sims) < 2:
+            return 1.0
+        return change_evidence(
+            sims[0].best_error, self.error_levels(), self.params.tracker.appearance
+        )
+
+    def error_levels(self) -> FloatArray:
+        """The tour's error levels (:meth:`TourIndex.error_levels`, states related when they
+        share a place), computed once per set of weights (a few hundred ms on a home's tour)."""
+        key = self.index.weights.tobytes()
+        if self._levels is None or self._levels[0] != key:
+            self._levels = (key, self.index.error_levels(related_states(self.graph)))
+        return self._levels[1]
+
+
+def related_states(graph: TourGraph) -> npt.NDArray[np.bool_]:
+    """``(n_states, n_states) bool``: states that share a place (a place and itself, a place
+    and the edges at it, two edges at one place), whose images overlap near that place."""
+    nl = graph.n_locations
+    inc = np.zeros((graph.n_states, nl), bool)  # state -> the places it touches
+    inc[np.arange(nl), np.arange(nl)] = True
+    for j, e in enumerate(graph.edges):
+        inc[nl + j, [e.source, e.target]] = True
+    related: npt.NDArray[np.bool_] = (inc.astype(np.int64) @ inc.T.astype(np.int64)) > 0
+    return related
 
 
 def image_layout(graph: TourGraph) -> ImageLayout:

@@ -177,6 +177,10 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             best={"type": "object", "description": "the best-matching taught image"},
             position={"type": "object", "description": "the most likely fine state"},
             appearance={"type": "array", "items": {"type": "number"}},
+            light_change={
+                "type": "number",
+                "description": "0-1, how little the frame looks like the tour in its own light",
+            },
         ),
     ),
     VOTES: (

@@ -250,6 +250,8 @@ class NavigationService:
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
+        if len(rt.index.model_weights()) > 1:
+            rt.error_levels()  # the change evidence's scale, before the first frame needs it
         self._distinctiveness(tour_id, rt)
         self._mapped(rt)
         self._experiences(tour_id, rt)
@@ -683,6 +685,7 @@ def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPub
         localised=summary.localised,
         localised_state=localised,
         appearance=[round(float(x), 4) for x in summary.appearance],
+        light_change=round(float(summary.light_change), 4),
     )
 
 

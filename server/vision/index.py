@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -191,6 +192,11 @@ class Similarity:
         first_pass_ms, second_pass_ms: wall time of the two passes (ms).
         n_scored: images whose signature distance the first pass computed (every image, or
             those in the probed lists and the visual-word candidates on a large tour).
+        best_error: the smallest error ``e`` of the candidates *before* eq. (4) normalises
+            it (unitless, ~[0, 1.5]; lower = a closer match; NaN without candidates): how
+            well the frame matches anything in the tour at all, which the normalised
+            similarities no longer say (:meth:`TourIndex.error_levels` gives the tour's own
+            scale for it).
     """
 
     image: FloatArray
@@ -200,6 +206,7 @@ class Similarity:
     first_pass_ms: float
     second_pass_ms: float
     n_scored: int = 0
+    best_error: float = math.nan
 
     @property
     def total_ms(self) -> float:
@@ -862,11 +869,47 @@ class TourIndex:
         block distances of the first pass and the corner distances of the second."""
         return self._query(features, n_states, self.model_weights())
 
+    def error_levels(self, related: npt.ArrayLike | None = None, n_probe: int = 128) -> FloatArray:
+        """``(P,) float64``, ascending: the tour's own scale for :attr:`Similarity.best_error`.
+
+        ``P <= n_probe`` taught images, evenly spaced, are each queried with the tour's
+        weights against the images of the states not related to its own; each gives its best
+        error. So the levels say how well a frame taken in the tour's own light matches the
+        tour where it is *not* (:func:`server.belief.appearance.change_evidence`).
+
+        Args:
+            related: ``(n_states, n_states) bool``, ``related[a, b]``: an image of state ``a``
+                must not be scored against the images of state ``b`` (a state and its graph
+                neighbours, whose images overlap its own). ``None``: only the state itself.
+            n_probe: at most this many taught images are queried (time in proportion).
+
+        Returns:
+            the best errors, ascending; empty when no image has an unrelated state.
+        """
+        n = self._n_taught
+        states = self._state[:n]
+        if n == 0:
+            return np.zeros(0)
+        ns = int(states.max()) + 1
+        rel = np.eye(ns, dtype=bool) if related is None else np.asarray(related, bool)
+        if rel.shape[0] != rel.shape[1] or rel.shape[0] < ns:
+            raise ValueError(f"related must be (n_states, n_states) with n_states >= {ns}")
+        out: list[float] = []
+        probes = np.unique(np.linspace(0, n - 1, min(int(n_probe), n)).round().astype(np.int64))
+        for i in probes:
+            exclude = rel[int(states[i])] | np.eye(len(rel), dtype=bool)[int(states[i])]
+            sim = self._query(self.features(int(i)), len(rel), (self._weights,), exclude=exclude)
+            if math.isfinite(sim[0].best_error):
+                out.append(sim[0].best_error)
+        return np.sort(np.asarray(out, np.float64))
+
     def _query(
         self,
         features: ImageFeatures,
         n_states: int | None,
         weight_sets: Sequence[FloatArray],
+        *,
+        exclude: npt.NDArray[np.bool_] | None = None,
     ) -> tuple[Similarity, ...]:
         p = self.params
         n = self._n
@@ -901,6 +944,15 @@ class TourIndex:
                 cand = np.union1d(top, best).astype(np.int64)
                 cands.append(cand)
                 dcand.append(d[cand])
+        if exclude is not None:  # (n_states,) bool: states whose images may not answer
+            keep = [~exclude[self._state[c]] for c in cands]
+            cands = [c[k] for c, k in zip(cands, keep, strict=True)]
+            dcand = [dc[k] for dc, k in zip(dcand, keep, strict=True)]
+            if not all(len(c) for c in cands):
+                return tuple(
+                    Similarity(np.zeros(0), np.zeros(0), np.zeros(0, np.int64), c, 0.0, 0.0)
+                    for c in cands
+                )
         union = functools.reduce(np.union1d, cands).astype(np.int64)
         t1 = time.perf_counter()
 
@@ -921,7 +973,8 @@ class TourIndex:
                 sub = None if dist is None else dist[:, pos[verify]]
                 e_geo[verify] = self._geometric_errors(features, cand[verify], sub)
                 e = e + p.geometric_weight * e_geo
-            out.append(self._similarity(cand, _normalise_errors(e, p.floor), ns))
+            sim = self._similarity(cand, _normalise_errors(e, p.floor), ns)
+            out.append(dataclasses.replace(sim, best_error=float(e.min())))
         t2 = time.perf_counter()
         return tuple(
             dataclasses.replace(

@@ -11,6 +11,8 @@ from hypothesis.extra.numpy import arrays
 
 from server.belief.appearance import (
     AppearanceParams,
+    change_evidence,
+    gated_scores,
     model_scores,
     posterior,
     update_log_posterior,
@@ -87,3 +89,72 @@ def test_the_model_that_follows_the_motion_gains_the_belief(model: BeliefModel) 
         pytest.approx(0.5),
         pytest.approx(0.5),
     )
+
+
+# ------------------------------------------------------------------ the change evidence
+
+
+def test_change_evidence_rises_from_the_low_to_the_high_quantile_of_the_levels() -> None:
+    levels = np.linspace(0.3, 0.7, 101)  # quantiles 0.1 / 0.5 = 0.34 / 0.5
+    p = AppearanceParams()
+    assert change_evidence(0.1, levels, p) == 0.0
+    assert change_evidence(0.34, levels, p) == pytest.approx(0.0, abs=1e-12)
+    assert change_evidence(0.42, levels, p) == pytest.approx(0.5)
+    assert change_evidence(0.5, levels, p) == pytest.approx(1.0)
+    assert change_evidence(0.9, levels, p) == 1.0
+    # without information, or with the gate off, the models compete freely
+    assert change_evidence(float("nan"), levels, p) == 1.0
+    assert change_evidence(0.1, np.zeros(0), p) == 1.0
+    assert change_evidence(0.1, levels, AppearanceParams(change_gate=False)) == 1.0
+    with pytest.raises(ValueError):
+        AppearanceParams(familiar_low=0.5, familiar_high=0.5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(0.0, 2.0, allow_nan=False),
+    arrays(np.float64, st.integers(1, 40), elements=st.floats(0.0, 1.5, allow_nan=False)),
+)
+def test_change_evidence_is_bounded_and_monotone(error: float, levels: np.ndarray) -> None:
+    p = AppearanceParams()
+    g = change_evidence(error, levels, p)
+    assert 0.0 <= g <= 1.0
+    assert change_evidence(error + 0.05, levels, p) >= g
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    arrays(np.float64, st.integers(1, 4), elements=st.floats(1e-3, 10.0, allow_nan=False)),
+    st.floats(0.0, 1.0),
+)
+def test_gated_scores_match_the_naive_rule(scores: np.ndarray, g: float) -> None:
+    naive = [scores[0]] + [s if s <= scores[0] else scores[0] ** (1 - g) * s**g for s in scores[1:]]
+    out = gated_scores(scores, g)
+    np.testing.assert_allclose(out, naive, rtol=1e-12)
+    assert np.all(out[1:] <= np.maximum(scores[1:], scores[0]) * (1 + 1e-12))
+    np.testing.assert_allclose(gated_scores(scores, 1.0), scores, rtol=1e-12)
+    assert np.all(gated_scores(scores, 0.0)[1:] <= scores[0] * (1 + 1e-12))
+
+
+def test_in_the_tours_own_light_the_changed_model_cannot_gain_the_belief(
+    model: BeliefModel,
+) -> None:
+    """The scenario of the test above, the changed model explaining the frames better: with
+    the change evidence at 0 (every frame seen in the tour's light) it never gains; at 1 it
+    does, as before the gate."""
+    n = model.n_fine
+    runs = {}
+    for change in (0.0, 1.0):
+        tracker = Tracker(model, TrackerParams())
+        rng = np.random.default_rng(1)
+        for k in range(20):
+            follows = _peak(n, 2 + k)
+            wanders = _peak(n, int(rng.integers(0, n)))
+            lik = np.stack([wanders, follows])
+            summary = tracker.step(Action.navigate(None), lik, v=0.3, dt=0.3, change=change)
+            assert summary.light_change == change
+        runs[change] = summary.appearance[1]
+    assert runs[0.0] <= 0.5
+    assert runs[1.0] > 0.9
+    single = Tracker(model, TrackerParams()).step(Action.navigate(None), _peak(n, 3), v=0, dt=0)
+    assert single.light_change == 1.0

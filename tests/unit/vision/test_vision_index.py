@@ -226,3 +226,44 @@ def test_block_distances_match_the_naive_reference(tour) -> None:
     bounds = np.concatenate([[0], np.cumsum([n for _, n in signature_blocks()])])
     naive = block_distances(frame.signature, idx.signatures, bounds)
     np.testing.assert_allclose(idx.block_distances(frame), naive, atol=1e-4)
+
+
+def test_best_error_is_the_raw_error_of_the_best_match(tour) -> None:
+    """``best_error`` is e before normalisation: ~0 for a stored image, larger for a changed
+    copy, larger still for an unseen scene; the naive reference is e over every image."""
+    idx, images = tour
+    p = idx.params
+    same = idx.query(extract(images[4]))
+    changed = idx.query(extract(cv2.GaussianBlur(images[4], (7, 7), 2.0)))
+    unseen_frame = extract(scene(900))
+    unseen = idx.query(unseen_frame)
+    assert same.best_error == pytest.approx(0.0, abs=1e-3)  # float32 signatures
+    assert same.best_error < changed.best_error < unseen.best_error
+    every = np.arange(idx.n_images)
+    naive = p.feature_weight * idx.feature_errors(unseen_frame, every) + p.signature_weight * (
+        idx.signature_distances(unseen_frame).astype(np.float64)
+    )
+    assert unseen.best_error == pytest.approx(float(naive.min()), rel=1e-5)
+
+
+def test_error_levels_score_each_image_against_the_unrelated_states_only(tour) -> None:
+    idx, _ = tour  # 4 states of 3 images
+    levels = idx.error_levels()
+    assert len(levels) == N_SCENES and np.all(np.diff(levels) >= 0)
+    assert np.all(np.isfinite(levels)) and levels[0] > 0.0  # never an image against itself
+    # the naive reference for one image: its best e among the other states' images
+    p = idx.params
+    frame = idx.features(4)
+    others = np.flatnonzero(idx.states != idx.states[4])
+    e = p.feature_weight * idx.feature_errors(frame, others) + p.signature_weight * (
+        idx.signature_distances(frame)[others].astype(np.float64)
+    )
+    assert np.isclose(levels, float(e.min()), rtol=1e-5).any()
+    # relating every state to its neighbours leaves fewer, worse matches
+    related = np.eye(4, dtype=bool) | np.eye(4, k=1, dtype=bool) | np.eye(4, k=-1, dtype=bool)
+    apart = idx.error_levels(related)
+    assert len(apart) == N_SCENES and np.median(apart) >= np.median(levels)
+    assert len(idx.error_levels(np.ones((4, 4), bool))) == 0  # nothing unrelated
+    assert len(idx.error_levels(n_probe=5)) == 5
+    with pytest.raises(ValueError):
+        idx.error_levels(np.eye(2, dtype=bool))
