@@ -502,10 +502,11 @@ class BeliefPublic(_Model):
         ge=0.0,
         le=1.0,
         description=(
-            "How little this frame looks like the tour in the tour's own light, 0-1: 0 when "
-            "it matches the tour better than the tour's images match its other places (the "
-            "changed-light model then cannot gain trust), 1 when no better than most of them "
-            "(and always 1 with one appearance model; docs/localize.md)."
+            "Evidence that the light changed since the tour, 0-1, from the last frames: 0 "
+            "while they match the tour better than its images match its other places (the "
+            "belief then uses the tour's own appearance model alone), 1 when they match it "
+            "no better than most of those (the models compete); 1 with one appearance model "
+            "(docs/localize.md)."
         ),
     )
 

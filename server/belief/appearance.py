@@ -22,20 +22,29 @@ frames) expects the robot gains weight; one whose peaks wander is discounted.
 That relative test alone lets the change-robust model win in the tour's own light whenever its
 flatter peaks happen to sit where the belief is (a robot turning between the taught headings of
 one place; docs/localize.md), and it cannot tell two rooms apart. So a second, absolute test
-says whether the light changed at all: the frame's best error under the tour's model
-(:attr:`server.vision.index.Similarity.best_error`, before normalisation) against the tour's
-own scale for it, the best errors of taught images against the *other* places of the tour
-(:meth:`server.vision.index.TourIndex.error_levels`). A frame that matches the tour better than
-a taught image matches a wrong place is seen in the tour's light: the **change evidence**
-``g`` (:func:`change_evidence`) is 0 and no other model may score above the tour's on it
-(:func:`gated_scores`); from the ``familiar_high`` quantile of the levels up, ``g`` = 1 and the
-models compete as above. Nothing here is tuned to a data set: the scale comes from each tour.
+says whether the light changed at all, on a slower time scale than one frame:
+
+* each frame's **familiarity** ``q`` (:func:`familiarity`) is the quantile of its best error
+  under the tour's model (:attr:`server.vision.index.Similarity.best_error`, before
+  normalisation) among the tour's own **error levels**, the best errors of taught images
+  against the places they are not at (:meth:`server.vision.index.TourIndex.error_levels`):
+  low when the frame matches the tour better than the tour matches itself at wrong places;
+* the tracker smooths ``q`` over the last frames (``change_rate``): one view off the taught
+  path, or one look-alike, says little; a whole stretch that matches nothing as the tour was
+  taught says the light (the season, the lamps) changed;
+* the **change evidence** ``g`` (:func:`change_evidence`) rises from 0 at ``change_low`` to 1
+  at ``change_high`` of the smoothed ``q``. At ``g`` = 0 the other models neither gain trust
+  (:func:`gated_scores`) nor enter the mixture (:func:`gated_mixture`): the belief update is the
+  tour's model alone, bit for bit; at ``g`` = 1 the models compete as above.
+
+Nothing here is tuned to a data set: the scale comes from each tour's own images.
 
 Pure: NumPy only.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,19 +61,23 @@ class AppearanceParams:
         memory: forgetting factor of the accumulated log scores, in [0, 1) (per frame; 0.9
             forgets half of the evidence in about 7 frames, 0.7 s at 10 Hz).
         min_score: scores are clipped below at this, so one blank frame cannot veto a model.
-        familiar_low, familiar_high: quantiles of the tour's error levels
-            (:meth:`~server.vision.index.TourIndex.error_levels`) between which the change
-            evidence rises from 0 (the frame matches the tour at least as well as the best
-            ``familiar_low`` of its taught images match a wrong place) to 1 (no better than
-            the median one does).
+        change_rate: weight of each frame's familiarity in its running mean (per frame;
+            0.05: a time constant of 20 frames, 2 s at 10 Hz).
+        change_low, change_high: the running mean of the familiarity at which the change
+            evidence starts to rise from 0 and reaches 1 (quantiles of the tour's error
+            levels; chosen on the simulated apartment and the first halves of the shared data
+            sets, docs/localize.md: views near a home's taught images have a median of
+            0.41-0.45, views off its paths 0.56-0.58, the corridor's second traversal 0.67,
+            Nordland across seasons 0.87-0.92).
         change_gate: apply the change evidence (``False``: the models compete on every
-            frame, as before 2026-11-26's gate).
+            frame, as before 2026-11-26).
     """
 
     memory: float = 0.9
     min_score: float = 1e-3
-    familiar_low: float = 0.1
-    familiar_high: float = 0.5
+    change_rate: float = 0.05
+    change_low: float = 0.5
+    change_high: float = 0.6
     change_gate: bool = True
 
     def __post_init__(self) -> None:
@@ -72,8 +85,10 @@ class AppearanceParams:
             raise ValueError("memory must lie in [0, 1)")
         if not 0.0 < self.min_score <= 1.0:
             raise ValueError("min_score must lie in (0, 1]")
-        if not 0.0 <= self.familiar_low < self.familiar_high <= 1.0:
-            raise ValueError("familiar_low < familiar_high must both lie in [0, 1]")
+        if not 0.0 < self.change_rate <= 1.0:
+            raise ValueError("change_rate must lie in (0, 1]")
+        if not 0.0 <= self.change_low < self.change_high <= 1.0:
+            raise ValueError("change_low < change_high must both lie in [0, 1]")
 
 
 def model_scores(predicted: npt.ArrayLike, likelihoods: npt.ArrayLike) -> FloatArray:
@@ -109,26 +124,30 @@ def posterior(log_posterior: npt.ArrayLike) -> FloatArray:
     return p / p.sum()
 
 
-def change_evidence(best_error: float, levels: npt.ArrayLike, params: AppearanceParams) -> float:
-    """``g`` in [0, 1]: how little the frame looks like the tour in the tour's own light.
+def familiarity(best_error: float, levels: npt.ArrayLike) -> float:
+    """``q`` in [0, 1]: the fraction of the tour's error levels below the frame's best error
+    (0: it matches the tour better than any taught image matches a wrong place). NaN without
+    information (no levels, or no best error).
 
     Args:
         best_error: the frame's best error under the tour's model
-            (:attr:`~server.vision.index.Similarity.best_error`; NaN: no information).
-        levels: ``(P,)`` the tour's error levels
-            (:meth:`~server.vision.index.TourIndex.error_levels`); empty: no information.
-
-    Returns:
-        0 when ``best_error`` is at or below the ``familiar_low`` quantile of ``levels``, 1 at
-        or above the ``familiar_high`` quantile (and without information), linear between.
+            (:attr:`~server.vision.index.Similarity.best_error`).
+        levels: ``(P,)`` ascending (:meth:`~server.vision.index.TourIndex.error_levels`).
     """
     lv = np.asarray(levels, np.float64)
-    if not params.change_gate or len(lv) == 0 or not np.isfinite(best_error):
+    if len(lv) == 0 or not np.isfinite(best_error):
+        return math.nan
+    return float(np.searchsorted(lv, best_error, side="left")) / len(lv)
+
+
+def change_evidence(smoothed: float, params: AppearanceParams) -> float:
+    """``g`` in [0, 1] from the running mean of the familiarity: 0 up to ``change_low``, 1
+    from ``change_high`` on, linear between; 1 without information (NaN) or with the gate
+    off, so the models compete as without it."""
+    if not params.change_gate or not math.isfinite(smoothed):
         return 1.0
-    lo, hi = np.quantile(lv, [params.familiar_low, params.familiar_high])
-    if hi <= lo:
-        return 0.0 if best_error <= lo else 1.0
-    return float(np.clip((best_error - lo) / (hi - lo), 0.0, 1.0))
+    span = params.change_high - params.change_low
+    return float(np.clip((smoothed - params.change_low) / span, 0.0, 1.0))
 
 
 def gated_scores(scores: npt.ArrayLike, change: float) -> FloatArray:
@@ -143,3 +162,12 @@ def gated_scores(scores: npt.ArrayLike, change: float) -> FloatArray:
     above = s[1:] > first
     s[1:][above] = first ** (1.0 - g) * s[1:][above] ** g
     return s
+
+
+def gated_mixture(weights: npt.ArrayLike, change: float) -> FloatArray:
+    """``(K,)`` mixture weights with every model but the first scaled by ``change`` and
+    renormalised: at ``g`` = 0 ``(1, 0, ...)``, the tour's model alone; at 1 unchanged."""
+    w = np.asarray(weights, np.float64).copy()
+    w[1:] *= float(np.clip(change, 0.0, 1.0))
+    total = float(w.sum())
+    return w / total if total > 0 else np.eye(len(w))[0]

@@ -26,6 +26,8 @@ import scipy.sparse as sp
 
 from server.belief.appearance import (
     AppearanceParams,
+    change_evidence,
+    gated_mixture,
     gated_scores,
     model_scores,
     posterior,
@@ -362,6 +364,7 @@ class Tracker:
         self._streak = 0
         self._steps = 0
         self._appearance = np.zeros(0)  # log posterior over appearance models; empty = none yet
+        self._familiar = math.nan  # running mean of the frames' familiarity; NaN = none yet
         self._run: list[FilterStep] = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
@@ -390,12 +393,13 @@ class Tracker:
         v: float,
         dt: float,
         w: float = 0.0,
-        change: float = 1.0,
+        familiarity: float = math.nan,
     ) -> BeliefSummary:
         """Predict with ``action`` (advance from ``v`` m/s, ``w`` rad/s and ``dt`` s), update,
-        summarise. ``change``: with one likelihood per appearance model, the frame's change
-        evidence in [0, 1] (:func:`~server.belief.appearance.change_evidence`; 1, the
-        default, lets the models compete freely)."""
+        summarise. ``familiarity``: with one likelihood per appearance model, the frame's
+        familiarity in [0, 1] (:func:`~server.belief.appearance.familiarity`), smoothed over
+        the frames into the change evidence that weighs the models; NaN (the default): no
+        information, the models compete freely."""
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
@@ -422,12 +426,19 @@ class Tracker:
             # trust by agreeing with the stale belief: only forget
             usual = self._fast < 0 or self._fast >= p.localised_evidence * self._slow
             scores = model_scores(moved, lik) if usual else np.ones(len(lik))
+            if math.isfinite(familiarity):
+                rate = p.appearance.change_rate
+                known = math.isfinite(self._familiar)
+                self._familiar = (
+                    self._familiar + rate * (familiarity - self._familiar) if known else familiarity
+                )
+            change = change_evidence(self._familiar, p.appearance)
             scores = gated_scores(scores, change)
             self._appearance = update_log_posterior(self._appearance, scores, p.appearance)
-            mix = posterior(self._appearance)
+            mix = gated_mixture(posterior(self._appearance), change)
             lik = mix @ lik
         else:
-            mix = np.ones(1)
+            mix, change = np.ones(1), 1.0
             lik = lik[0]
         ratio = float(moved @ lik) / (float(moved.sum()) * float(lik.max()))  # scale-free
         if self._fast < 0:
@@ -472,7 +483,7 @@ class Tracker:
             step=self._steps,
             state=state,
             appearance=tuple(float(x) for x in mix),
-            light_change=float(change) if stacked else 1.0,
+            light_change=float(change),
         )
         return self._summary
 

@@ -523,6 +523,9 @@ class Replay:
     changed: list[float] = field(default_factory=list)
     """Per frame, the tracker's belief that the change-robust appearance model holds (0 with
     one model)."""
+    light_change: list[float] = field(default_factory=list)
+    """Per frame, the change evidence the tracker weighed the models with (1 with one model;
+    :mod:`server.belief.appearance`)."""
     mcl_xy: list[tuple[float, float]] = field(default_factory=list)
     """Per frame, Monte-Carlo localisation's position (``--mcl``; docs/ambiguity.md)."""
     observations: list[Observation] = field(default_factory=list)
@@ -538,7 +541,7 @@ class Observation:
 
     likelihood: FloatArray
     best_image: int
-    change: float = 1.0
+    familiarity: float = math.nan
 
 
 def next_action(decision_action: Action, mode: str) -> Action:
@@ -572,7 +575,7 @@ def replay(
     with ``mcl``, Monte-Carlo localisation beside them. ``observations`` (one per query frame,
     from an earlier replay's :attr:`Replay.observations`) skip the engine; ``advance_scale``
     gives the belief model learned transitions (:mod:`server.belief.learning`)."""
-    from server.belief.appearance import change_evidence
+    from server.belief.appearance import familiarity
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
     from server.navigation.runtime import related_states
@@ -604,21 +607,17 @@ def replay(
             sims = index.query_models(feats, n_states=graph.n_states)
             lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
             best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
-            change = (
-                change_evidence(sims[0].best_error, levels, tracker_params.appearance)
-                if len(sims) > 1
-                else 1.0
-            )
+            known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
             if mcl is not None:
                 pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
                 out.mcl_xy.append((pose.x, pose.y))
         else:
             t1 = t0
             obs = observations[i]
-            lik, best, change = obs.likelihood, obs.best_image, obs.change
-        out.observations.append(Observation(lik, best, change))
+            lik, best, known = obs.likelihood, obs.best_image, obs.familiarity
+        out.observations.append(Observation(lik, best, known))
         t2 = time.perf_counter()
-        summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, change=change)
+        summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, familiarity=known)
         decision = decide(graph, summary.belief, goal, costs)
         t3 = time.perf_counter()
         action = next_action(decision.action, action_mode)
@@ -634,6 +633,7 @@ def replay(
         out.query.append(int(qf))
         out.ir_only.append(int(tour.image_frame[best]))
         out.changed.append(float(summary.appearance[-1]) if len(lik) > 1 else 0.0)
+        out.light_change.append(float(summary.light_change))
         out.tracker.append(int(tour.fine_frame[int(np.argmax(summary.belief))]))
         out.localised_frames.append(
             tour.state_frames[summary.localised_state]
@@ -1032,6 +1032,8 @@ def per_frame(res: Replay) -> dict[str, Any]:
         "smoother": res.smoother,
         "localised": [f is not None for f in res.localised_frames],
         "localised_span": [None if f is None else [min(f), max(f)] for f in res.localised_frames],
+        "changed": [round(x, 4) for x in res.changed],
+        "light_change": [round(x, 4) for x in res.light_change],
     }
 
 

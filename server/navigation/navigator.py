@@ -183,9 +183,9 @@ class Navigator:
         """No task underway: the belief goes on; the robot stands."""
         features = extract(frame.image, self.params.features)
         similarities, likelihood = self.runtime.observe(features)
-        change = self.runtime.change_evidence(similarities)
+        known = self.runtime.familiarity(similarities)
         summary = self.tracker.step(
-            self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt, change=change
+            self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known
         )
         return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 

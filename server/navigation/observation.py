@@ -194,8 +194,8 @@ def perceive(
     p = runtime.params
     features = extract(frame.image, p.features)
     similarities, likelihood = runtime.observe(features)
-    change = runtime.change_evidence(similarities)
-    summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt, change=change)
+    known = runtime.familiarity(similarities)
+    summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known)
     similarity = preferred(similarities, summary)
     decision = decide(
         runtime.graph,

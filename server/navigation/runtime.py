@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from functools import lru_cache
@@ -9,7 +10,7 @@ from functools import lru_cache
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.appearance import change_evidence
+from server.belief.appearance import familiarity
 from server.belief.model import BeliefModel, build_model
 from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
@@ -175,15 +176,13 @@ class TourRuntime:
         sims = self.index.query_models(features, n_states=self.graph.n_states)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
 
-    def change_evidence(self, sims: Sequence[Similarity]) -> float:
-        """The frame's change evidence in [0, 1] for :meth:`Tracker.step` (1 with one
-        appearance model): its best error under the tour's model against the tour's error
-        levels (:func:`server.belief.appearance.change_evidence`)."""
+    def familiarity(self, sims: Sequence[Similarity]) -> float:
+        """The frame's familiarity in [0, 1] for :meth:`Tracker.step`: its best error under
+        the tour's model among the tour's error levels
+        (:func:`server.belief.appearance.familiarity`); NaN with one appearance model."""
         if len(sims) < 2:
-            return 1.0
-        return change_evidence(
-            sims[0].best_error, self.error_levels(), self.params.tracker.appearance
-        )
+            return math.nan
+        return familiarity(sims[0].best_error, self.error_levels())
 
     def error_levels(self) -> FloatArray:
         """The tour's error levels (:meth:`TourIndex.error_levels`, states related when they

@@ -144,9 +144,9 @@ class QuestionService(TeachingObserver, NavigationObserver):
         last = state.last_timestamp
         dt = 0.0 if last is None else float(np.clip(meta.timestamp - last, 0.0, rt.params.max_dt_s))
         state.last_timestamp = meta.timestamp
-        change = rt.change_evidence(sims)
+        known = rt.familiarity(sims)
         summary = state.tracker.step(
-            Action.explore(), likelihood, v=meta.v, w=meta.w, dt=dt, change=change
+            Action.explore(), likelihood, v=meta.v, w=meta.w, dt=dt, familiarity=known
         )
         index = {loc.id: k for k, loc in enumerate(graph.locations)}
         start = index.get(state.start) if state.start is not None else None

@@ -875,7 +875,7 @@ class TourIndex:
         ``P <= n_probe`` taught images, evenly spaced, are each queried with the tour's
         weights against the images of the states not related to its own; each gives its best
         error. So the levels say how well a frame taken in the tour's own light matches the
-        tour where it is *not* (:func:`server.belief.appearance.change_evidence`).
+        tour where it is *not* (:func:`server.belief.appearance.familiarity`).
 
         Args:
             related: ``(n_states, n_states) bool``, ``related[a, b]``: an image of state ``a``

@@ -32,7 +32,7 @@ def test_related_states_are_those_that_share_a_place() -> None:
     assert rel[3].sum() == 1  # D has no edges: related to itself only
 
 
-def test_the_change_evidence_is_zero_for_a_taught_view_and_one_with_a_single_model() -> None:
+def test_a_taught_view_is_familiar_and_a_single_model_gives_no_familiarity() -> None:
     from vision_testkit import scene
 
     two = runtime(engine=replace(EngineParams(), changed_weights=CHANGED_WEIGHTS))
@@ -40,11 +40,11 @@ def test_the_change_evidence_is_zero_for_a_taught_view_and_one_with_a_single_mod
     taught = FEATURES[7]
     sims, lik = two.observe(taught)
     assert lik.shape == (2, GRAPH.n_fine)
-    assert two.change_evidence(sims) == 0.0
-    unseen = [two.change_evidence(two.observe(extract(scene(s)))[0]) for s in range(5000, 5010)]
-    assert all(0.0 <= g <= 1.0 for g in unseen) and np.mean(unseen) > 0.5  # unseen scenes
+    assert two.familiarity(sims) == 0.0
+    unseen = [two.familiarity(two.observe(extract(scene(s)))[0]) for s in range(5000, 5010)]
+    assert all(0.0 <= q <= 1.0 for q in unseen) and np.mean(unseen) > 0.2  # unseen scenes
     one = runtime()
-    assert one.change_evidence(one.observe(taught)[0]) == 1.0
+    assert np.isnan(one.familiarity(one.observe(taught)[0]))
 
 
 def test_error_levels_are_kept_until_the_weights_change() -> None:
