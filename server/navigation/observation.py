@@ -24,8 +24,10 @@ from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
     HomingResult,
     ScaleResult,
+    ZoomLevel,
     homing_offset,
     homing_scale,
+    homing_scale_taught_zoomed,
     homing_scale_zoomed,
     zoom_levels,
 )
@@ -235,13 +237,26 @@ def match_views(
     features: ImageFeatures,
     request: ViewRequest,
 ) -> Views:
-    """The frame matched against every requested taught image (zoom levels made only when a
-    zoomed fit is asked for)."""
+    """The frame matched against every requested taught image.
+
+    A zoomed fit reads the taught image's zoom levels (:meth:`TourRuntime.taught_levels`,
+    made once per taught image), so the frame is not zoomed at all; only for a taught image
+    whose pixels the runtime cannot read are the frame's own zoom levels made (four corner
+    extractions, once per frame)."""
     taught = runtime.features
     p = runtime.params
-    levels = zoom_levels(image, features, p.dock_zooms, p.features) if request.zoomed else ()
+    frame_levels: tuple[ZoomLevel, ...] | None = None
+    zoomed: dict[int, ScaleResult | None] = {}
+    for i in sorted(request.zoomed):
+        levels = runtime.taught_levels(i)
+        if levels is not None:
+            zoomed[i] = homing_scale_taught_zoomed(features, levels)
+            continue
+        if frame_levels is None:
+            frame_levels = zoom_levels(image, features, p.dock_zooms, p.features)
+        zoomed[i] = homing_scale_zoomed(frame_levels, taught[i])
     return Views(
         offsets={i: homing_offset(features, taught[i]) for i in sorted(request.offsets)},
         scales={i: homing_scale(features, taught[i]) for i in sorted(request.scales)},
-        zoomed={i: homing_scale_zoomed(levels, taught[i]) for i in sorted(request.zoomed)},
+        zoomed=zoomed,
     )
