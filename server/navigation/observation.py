@@ -239,22 +239,25 @@ def match_views(
 ) -> Views:
     """The frame matched against every requested taught image.
 
-    A zoomed fit reads the taught image's zoom levels (:meth:`TourRuntime.taught_levels`,
-    made once per taught image), so the frame is not zoomed at all; only for a taught image
-    whose pixels the runtime cannot read are the frame's own zoom levels made (four corner
-    extractions, once per frame)."""
+    A zoomed fit reads the frame zoomed in (two corner extractions, once per frame) and the
+    taught image zoomed in for the frame zoomed out (:meth:`TourRuntime.taught_levels`, made
+    once per taught image), where the frame's own zooms took four extractions per frame. For a
+    taught image whose pixels the runtime cannot read, the frame's four zooms as before."""
     taught = runtime.features
     p = runtime.params
-    frame_levels: tuple[ZoomLevel, ...] | None = None
+    frame_in: tuple[ZoomLevel, ...] | None = None
+    frame_all: tuple[ZoomLevel, ...] | None = None
     zoomed: dict[int, ScaleResult | None] = {}
     for i in sorted(request.zoomed):
         levels = runtime.taught_levels(i)
         if levels is not None:
-            zoomed[i] = homing_scale_taught_zoomed(features, levels)
+            if frame_in is None:
+                frame_in = zoom_levels(image, features, p.dock_zooms, p.features, "in")
+            zoomed[i] = homing_scale_taught_zoomed(features, levels, frame_levels=frame_in)
             continue
-        if frame_levels is None:
-            frame_levels = zoom_levels(image, features, p.dock_zooms, p.features)
-        zoomed[i] = homing_scale_zoomed(frame_levels, taught[i])
+        if frame_all is None:
+            frame_all = zoom_levels(image, features, p.dock_zooms, p.features)
+        zoomed[i] = homing_scale_zoomed(frame_all, taught[i])
     return Views(
         offsets={i: homing_offset(features, taught[i]) for i in sorted(request.offsets)},
         scales={i: homing_scale(features, taught[i]) for i in sorted(request.scales)},

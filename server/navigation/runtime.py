@@ -27,8 +27,8 @@ FloatArray = npt.NDArray[np.float64]
 #: when they cannot be had.
 TaughtPixels = Callable[[int], "npt.NDArray[np.uint8] | None"]
 #: Taught images whose zoom levels (:meth:`TourRuntime.taught_levels`) a runtime keeps, the
-#: least recently asked for forgotten first: about 15 kB each with the default features
-#: (4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
+#: least recently asked for forgotten first: about 9 kB each with the default features
+#: (2 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
 ZOOM_CACHE_IMAGES = 256
 
 
@@ -102,9 +102,12 @@ class TourRuntime:
         self._zoomed_lock = threading.Lock()
 
     def taught_levels(self, image: int) -> tuple[ZoomLevel, ...] | None:
-        """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits
-        (:func:`~server.vision.homing.taught_zoom_levels` with ``params.dock_zooms``): made
-        from its pixels the first time it is asked for (four corner extractions), then kept
+        """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits: the
+        taught image zoomed in by each of ``params.dock_zooms``, standing for the frame zoomed
+        out (:func:`~server.vision.homing.taught_zoom_levels` with ``which="out"``; the frame
+        zoomed in stays on the frame's side, :func:`~server.vision.homing.
+        homing_scale_taught_zoomed` says why). Made from its pixels the first time it is asked
+        for (two corner extractions), then kept
         for the :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` when the runtime
         cannot read the taught pixels (no :attr:`taught_pixels`, or it gave ``None``)."""
         with self._zoomed_lock:
@@ -117,7 +120,9 @@ class TourRuntime:
         levels = (
             None
             if pixels is None
-            else taught_zoom_levels(pixels, self.features[image], p.dock_zooms, p.features)
+            else taught_zoom_levels(
+                pixels, self.features[image], p.dock_zooms, p.features, which="out"
+            )
         )
         if read is None:
             return None  # nothing to remember: pixels may be given later

@@ -42,8 +42,8 @@ def test_levels_are_made_once_per_taught_image_from_its_pixels() -> None:
     assert levels is not None and rt.taught_levels(5) is levels
     assert reads == [5]
     p = rt.params
-    reference = taught_zoom_levels(scene(IMAGES[5]), FEATURES[5], p.dock_zooms, p.features)
-    assert [lv.factor for lv in levels] == [lv.factor for lv in reference]
+    reference = taught_zoom_levels(scene(IMAGES[5]), FEATURES[5], p.dock_zooms, p.features, "out")
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1 / 1.3, 1 / 1.69])
     assert levels[0].features is FEATURES[5]
     assert all(a.features == b.features for a, b in zip(levels, reference, strict=True))
 
@@ -69,8 +69,8 @@ def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -
 
 
 def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missing() -> None:
-    """Naive reference: each requested image's zoomed fit is the taught-zoom fit when its
-    pixels can be read, the frame-zoom fit otherwise."""
+    """Naive reference: each requested image's zoomed fit reads the frame zoomed in and the
+    taught image zoomed in when its pixels can be read, the frame's four zooms otherwise."""
     rt = runtime()
     frame = zoomed(scene(IMAGES[7]), 1.4)
     feats = extract(frame)
@@ -79,9 +79,11 @@ def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missin
     views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({6, 7, 8})))
     p = rt.params
     frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
     for k in (6, 7):
-        levels = taught_zoom_levels(scene(IMAGES[k]), FEATURES[k], p.dock_zooms, p.features)
-        assert views.zoomed_scale(k) == homing_scale_taught_zoomed(feats, levels)
+        levels = taught_zoom_levels(scene(IMAGES[k]), FEATURES[k], p.dock_zooms, p.features, "out")
+        expected = homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
+        assert views.zoomed_scale(k) == expected
     assert views.zoomed_scale(8) == homing_scale_zoomed(frame_levels, FEATURES[8])
     fit = views.zoomed_scale(7)
     assert fit is not None and fit.inliers >= 20
