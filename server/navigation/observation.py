@@ -239,17 +239,18 @@ def match_views(
 ) -> Views:
     """The frame matched against every requested taught image.
 
-    A zoomed fit reads the frame zoomed in (two corner extractions, once per frame) and the
-    taught image zoomed in for the frame zoomed out (:meth:`TourRuntime.taught_levels`, made
-    once per taught image), where the frame's own zooms took four extractions per frame. For a
-    taught image whose pixels the runtime cannot read, the frame's four zooms as before."""
+    A zoomed fit reads the frame's zoom levels (:func:`~server.vision.homing.zoom_levels`:
+    four corner extractions, once per frame). With ``dock_taught_zooms`` it reads the frame
+    zoomed in (two extractions, once per frame) and, for the frame zoomed out, the taught
+    image zoomed in (:meth:`TourRuntime.taught_levels`, made once per taught image); the
+    frame's four zooms still serve a taught image whose pixels the runtime cannot read."""
     taught = runtime.features
     p = runtime.params
     frame_in: tuple[ZoomLevel, ...] | None = None
     frame_all: tuple[ZoomLevel, ...] | None = None
     zoomed: dict[int, ScaleResult | None] = {}
     for i in sorted(request.zoomed):
-        levels = runtime.taught_levels(i)
+        levels = runtime.taught_levels(i) if p.dock_taught_zooms else None
         if levels is not None:
             if frame_in is None:
                 frame_in = zoom_levels(image, features, p.dock_zooms, p.features, "in")

@@ -147,16 +147,23 @@ class NavigationParams:
       named the place the robot was really in, and said "arrived" 5.3 m from the goal.
     * ``dock_zooms`` ((1.3, 1.69)): both dockings read the scale through the frame zoomed in
       and out by each of these factors as well as as it is
-      (:func:`server.vision.homing.homing_scale_zoomed`). Since 2026-11-26 the zooms out are
-      made on the taught images instead, once per taught image
-      (:func:`server.vision.homing.homing_scale_taught_zoomed`): two more feature extractions
-      on a docking step instead of four, none otherwise. The corner descriptors are not scale
-      invariant: off the spot by 0.4-0.8 m, the near scene looks 1.3-2 times larger or smaller
-      than taught and matched few corners, so the fit rested on far scene at a scale of ~1 and
-      docking stopped short. () reads the frame as it is only. Benchmark of 2026-11-24 (with
-      the tour-build race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved
-      furniture, against 44, 48 and 43 on 2026-11-23; the three unchanged-home runs place
-      docking had left 0.6-0.9 m off now arrive (0.06-0.48 m, replayed alone).
+      (:func:`server.vision.homing.homing_scale_zoomed`; four more feature extractions on a
+      docking step, none otherwise). The corner descriptors are not scale invariant: off the
+      spot by 0.4-0.8 m, the near scene looks 1.3-2 times larger or smaller than taught and
+      matched few corners, so the fit rested on far scene at a scale of ~1 and docking stopped
+      short. () reads the frame as it is only. Benchmark of 2026-11-24 (with the tour-build
+      race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
+      44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
+      m off now arrive (0.06-0.48 m, replayed alone).
+    * ``dock_taught_zooms`` (False): the zooms out are made on the taught images instead (each
+      zoomed in by ``z``, once per taught image, :meth:`TourRuntime.taught_levels`;
+      :func:`server.vision.homing.homing_scale_taught_zoomed`): two extractions on a docking
+      step instead of four. Off by default: it changes what docking reads. Measured 2026-11-26
+      (docs/reliability.md): 0.65 ms less server CPU per frame in ``bench load`` (8.73 -> 8.09,
+      two alternated pairs); single views in the simulated homes read "past" more often when
+      the robot stood 0.4 m past the spot (76 % against 64 % of 96 views) and as before
+      otherwise; but closed loop (apartment + studio, same, 10 trials each, seed 100) 14/20
+      arrived against 16/20 (1 wrong place each; median path ratio 1.21 against 1.47).
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -227,6 +234,7 @@ class NavigationParams:
     place_dock_turns: float = 1.25
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
+    dock_taught_zooms: bool = False
     dock_second_axis: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0

@@ -95,8 +95,8 @@ class TourRuntime:
             np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
         )
         self._ambiguity: dict[int, float] = {}
-        # how to read a taught image's pixels (set by whoever built the runtime; without it
-        # docking zooms the frame instead, server.navigation.observation.match_views)
+        # how to read a taught image's pixels (set by whoever built the runtime), for
+        # NavigationParams.dock_taught_zooms; without it docking zooms the frame only
         self.taught_pixels: TaughtPixels | None = None
         self._zoomed: OrderedDict[int, tuple[ZoomLevel, ...] | None] = OrderedDict()
         self._zoomed_lock = threading.Lock()

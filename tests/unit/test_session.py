@@ -12,7 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "vision"))
 sys.path.insert(0, str(Path(__file__).parent / "navigation"))
-from navigation_testkit import FEATURES, GRAPH, A, B, C, D, with_pixels
+from navigation_testkit import FEATURES, GRAPH, A, B, C, D
 from vision_testkit import scene, zoomed
 
 from server.belief.model import Action, ActionKind
@@ -27,7 +27,7 @@ from server.vision.features import extract
 
 def session(**changes: object) -> RobotSession:
     params = replace(NavigationParams(), **changes)  # type: ignore[arg-type]
-    return RobotSession("rover", with_pixels(TourRuntime(GRAPH, FEATURES, params)))
+    return RobotSession("rover", TourRuntime(GRAPH, FEATURES, params))
 
 
 def spin_image(location: int, k: int = 0) -> np.ndarray:
@@ -318,7 +318,7 @@ def test_the_place_view_starts_at_the_last_image_taught_while_driving_forward() 
     ab = Edge(A, B, tuple(next(ids) for _ in range(n)), np.arange(n) * 0.5, v, np.zeros(n))
     graph = TourGraph(locs, (ab,))
     feats = [extract(scene(int(i))) for i in graph.image_ids]
-    rt = with_pixels(TourRuntime(graph, feats, NavigationParams()))
+    rt = TourRuntime(graph, feats, NavigationParams())
     assert rt.arrival == (6,)
     docking = Docking(rt, B)
     turned = scene(int(ab.image_ids[8]))  # the view once the guide had turned

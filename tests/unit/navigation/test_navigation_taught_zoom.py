@@ -1,5 +1,6 @@
-"""Docking's zoom levels of the taught images: made once per taught image from its pixels,
-kept within a bound, and the frame's own zooms only when the pixels cannot be read."""
+"""Docking's zoom levels of the taught images (``dock_taught_zooms``): made once per taught
+image from its pixels, kept within a bound, and the frame's own zooms when the pixels cannot
+be read or the option is off (the default)."""
 
 from __future__ import annotations
 
@@ -71,7 +72,7 @@ def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -
 def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missing() -> None:
     """Naive reference: each requested image's zoomed fit reads the frame zoomed in and the
     taught image zoomed in when its pixels can be read, the frame's four zooms otherwise."""
-    rt = runtime()
+    rt = runtime(dock_taught_zooms=True)
     frame = zoomed(scene(IMAGES[7]), 1.4)
     feats = extract(frame)
     missing = {8}
@@ -88,3 +89,18 @@ def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missin
     fit = views.zoomed_scale(7)
     assert fit is not None and fit.inliers >= 20
     assert fit.scale == pytest.approx(1 / 1.4, rel=0.03)  # the taught view looks smaller
+
+
+def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
+    rt = runtime()
+    assert not rt.params.dock_taught_zooms
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    frame = zoomed(scene(IMAGES[7]), 1 / 1.4)
+    feats = extract(frame)
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({6, 7})))
+    p = rt.params
+    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    for k in (6, 7):
+        assert views.zoomed_scale(k) == homing_scale_zoomed(frame_levels, FEATURES[k])
+    assert reads == []
