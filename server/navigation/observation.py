@@ -240,21 +240,26 @@ def match_views(
     """The frame matched against every requested taught image.
 
     A zoomed fit reads the frame's zoom levels (:func:`~server.vision.homing.zoom_levels`:
-    four corner extractions, once per frame). With ``dock_taught_zooms`` it reads the frame
-    zoomed in (two extractions, once per frame) and, for the frame zoomed out, the taught
-    image zoomed in (:meth:`TourRuntime.taught_levels`, made once per taught image); the
-    frame's four zooms still serve a taught image whose pixels the runtime cannot read."""
+    four corner extractions, once per frame). With ``dock_taught_zooms`` (``"out"`` or
+    ``"both"``) those zooms are read off the taught image instead
+    (:meth:`TourRuntime.taught_levels`, made once per taught image), the rest off the frame
+    (``"out"``: the frame zoomed in, two extractions once per frame); the frame's four zooms
+    still serve a taught image whose pixels the runtime cannot read."""
     taught = runtime.features
     p = runtime.params
-    frame_in: tuple[ZoomLevel, ...] | None = None
+    own: tuple[ZoomLevel, ...] | None = None  # the frame's zooms beside the taught ones
     frame_all: tuple[ZoomLevel, ...] | None = None
     zoomed: dict[int, ScaleResult | None] = {}
     for i in sorted(request.zoomed):
-        levels = runtime.taught_levels(i) if p.dock_taught_zooms else None
+        levels = runtime.taught_levels(i) if p.dock_taught_zooms != "off" else None
         if levels is not None:
-            if frame_in is None:
-                frame_in = zoom_levels(image, features, p.dock_zooms, p.features, "in")
-            zoomed[i] = homing_scale_taught_zoomed(features, levels, frame_levels=frame_in)
+            if own is None:
+                own = (
+                    zoom_levels(image, features, p.dock_zooms, p.features, "in")
+                    if p.dock_taught_zooms == "out"
+                    else ()
+                )
+            zoomed[i] = homing_scale_taught_zoomed(features, levels, frame_levels=own)
             continue
         if frame_all is None:
             frame_all = zoom_levels(image, features, p.dock_zooms, p.features)

@@ -19,7 +19,7 @@ from server.policy.costs import cost_to_goal
 from server.policy.disambiguation import fine_profiles
 from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
-from server.vision.homing import ZoomLevel, taught_zoom_levels
+from server.vision.homing import ZoomLevel, Zooms, taught_zoom_levels
 from server.vision.index import Similarity, TourIndex
 
 FloatArray = npt.NDArray[np.float64]
@@ -27,8 +27,8 @@ FloatArray = npt.NDArray[np.float64]
 #: when they cannot be had.
 TaughtPixels = Callable[[int], "npt.NDArray[np.uint8] | None"]
 #: Taught images whose zoom levels (:meth:`TourRuntime.taught_levels`) a runtime keeps, the
-#: least recently asked for forgotten first: about 9 kB each with the default features
-#: (2 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
+#: least recently asked for forgotten first: about 9 or 18 kB each with the default features
+#: (2 or 4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
 ZOOM_CACHE_IMAGES = 256
 
 
@@ -102,30 +102,31 @@ class TourRuntime:
         self._zoomed_lock = threading.Lock()
 
     def taught_levels(self, image: int) -> tuple[ZoomLevel, ...] | None:
-        """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits: the
-        taught image zoomed in by each of ``params.dock_zooms``, standing for the frame zoomed
-        out (:func:`~server.vision.homing.taught_zoom_levels` with ``which="out"``; the frame
-        zoomed in stays on the frame's side, :func:`~server.vision.homing.
-        homing_scale_taught_zoomed` says why). Made from its pixels the first time it is asked
-        for (two corner extractions), then kept
-        for the :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` when the runtime
-        cannot read the taught pixels (no :attr:`taught_pixels`, or it gave ``None``)."""
+        """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits
+        (:func:`~server.vision.homing.taught_zoom_levels` of ``params.dock_zooms``, those
+        ``params.dock_taught_zooms`` names: ``"out"`` the taught image zoomed in, standing for
+        the frame zoomed out; ``"both"`` zoomed in and out). Made from its pixels the first
+        time it is asked for (two or four corner extractions), then kept for the
+        :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` with ``dock_taught_zooms``
+        off or when the runtime cannot read the taught pixels (no :attr:`taught_pixels`, or it
+        gave ``None``)."""
+        p = self.params
+        if p.dock_taught_zooms == "off":
+            return None
         with self._zoomed_lock:
             if image in self._zoomed:
                 self._zoomed.move_to_end(image)
                 return self._zoomed[image]
         read = self.taught_pixels
-        pixels = read(image) if read is not None else None
-        p = self.params
+        if read is None:
+            return None  # nothing to remember: pixels may be given later
+        pixels = read(image)
+        which: Zooms = "out" if p.dock_taught_zooms == "out" else "both"
         levels = (
             None
             if pixels is None
-            else taught_zoom_levels(
-                pixels, self.features[image], p.dock_zooms, p.features, which="out"
-            )
+            else taught_zoom_levels(pixels, self.features[image], p.dock_zooms, p.features, which)
         )
-        if read is None:
-            return None  # nothing to remember: pixels may be given later
         with self._zoomed_lock:  # two threads may have made it at once: the same levels
             self._zoomed[image] = levels
             self._zoomed.move_to_end(image)

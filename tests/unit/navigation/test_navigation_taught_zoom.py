@@ -36,7 +36,7 @@ def counting_reader(reads: list[int]):  # type: ignore[no-untyped-def]
 
 
 def test_levels_are_made_once_per_taught_image_from_its_pixels() -> None:
-    rt = runtime()
+    rt = runtime(dock_taught_zooms="out")
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     levels = rt.taught_levels(5)
@@ -51,7 +51,7 @@ def test_levels_are_made_once_per_taught_image_from_its_pixels() -> None:
 
 def test_the_least_recently_asked_for_are_forgotten_first(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(runtime_module, "ZOOM_CACHE_IMAGES", 2)
-    rt = runtime()
+    rt = runtime(dock_taught_zooms="out")
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     for k in (1, 2, 1, 3, 1, 2):  # 2 is forgotten when 3 comes, 3 when 2 comes back
@@ -61,7 +61,7 @@ def test_the_least_recently_asked_for_are_forgotten_first(monkeypatch: pytest.Mo
 
 
 def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -> None:
-    rt = runtime()
+    rt = runtime(dock_taught_zooms="both")
     rt.taught_pixels = None
     assert rt.taught_levels(3) is None
     assert len(rt._zoomed) == 0
@@ -72,7 +72,7 @@ def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -
 def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missing() -> None:
     """Naive reference: each requested image's zoomed fit reads the frame zoomed in and the
     taught image zoomed in when its pixels can be read, the frame's four zooms otherwise."""
-    rt = runtime(dock_taught_zooms=True)
+    rt = runtime(dock_taught_zooms="out")
     frame = zoomed(scene(IMAGES[7]), 1.4)
     feats = extract(frame)
     missing = {8}
@@ -91,9 +91,24 @@ def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missin
     assert fit.scale == pytest.approx(1 / 1.4, rel=0.03)  # the taught view looks smaller
 
 
+def test_with_both_every_zoom_is_the_taught_image_s() -> None:
+    rt = runtime(dock_taught_zooms="both")
+    frame = zoomed(scene(IMAGES[3]), 1.5)
+    feats = extract(frame)
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({3})))
+    p = rt.params
+    levels = rt.taught_levels(3)
+    assert levels is not None
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69])
+    expected = taught_zoom_levels(scene(IMAGES[3]), FEATURES[3], p.dock_zooms, p.features)
+    assert all(a.features == b.features for a, b in zip(levels, expected, strict=True))
+    assert views.zoomed_scale(3) == homing_scale_taught_zoomed(feats, levels)
+
+
 def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
     rt = runtime()
-    assert not rt.params.dock_taught_zooms
+    assert rt.params.dock_taught_zooms == "off"
+    assert rt.taught_levels(6) is None
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     frame = zoomed(scene(IMAGES[7]), 1 / 1.4)
@@ -104,3 +119,8 @@ def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> No
     for k in (6, 7):
         assert views.zoomed_scale(k) == homing_scale_zoomed(frame_levels, FEATURES[k])
     assert reads == []
+
+
+def test_an_unknown_choice_is_refused_with_the_choices() -> None:
+    with pytest.raises(ValueError, match="'off', 'out' or 'both'"):
+        runtime(dock_taught_zooms="yes")
