@@ -380,13 +380,13 @@ def homing_scale_taught_zoomed(
     ``current`` the frame's own features, and ``frame_levels`` (:func:`zoom_levels`) the frame
     zooms to use instead of the taught level of the same factor.
 
-    Docking (:func:`server.navigation.observation.match_views`) zooms the frame in and the
-    taught images in (for the frame zoomed out): in the simulated homes (apartment and studio,
+    Docking uses it only with ``NavigationParams.dock_taught_zooms`` (off by default: it
+    changes closed-loop outcomes). ``teachrepeat bench dock-views`` (apartment and studio,
     every place, 8 headings, the robot 0.8 and 0.4 m behind and 0.4 m past the taught spot,
-    370 views) the taught image zoomed out for the frame zoomed in found fewer inliers (11.4
-    against 15.8 at 0.8 m behind) and read "short" less often (39 % of the views against
-    55 %), while the taught image zoomed in for the frame zoomed out found more (27.6 against
-    21.4 at 0.4 m past) and read "past" more often (78 % against 64 %).
+    370 views): the taught image zoomed out, for the frame zoomed in, found fewer inliers
+    (11.4 against 15.8 at 0.8 m behind) and read "short" less often (39 % of the views
+    against 55 %); the taught image zoomed in, for the frame zoomed out, found more (27.9
+    against 21.4 at 0.4 m past) and read "past" more often (76 % against 64 %).
 
     The result means what :func:`homing_scale_zoomed`'s does: scale, rotation, inliers and
     offset of the level with the most inliers (the first on a tie, levels in the order of
