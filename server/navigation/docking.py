@@ -118,9 +118,19 @@ class Docking:
     def wants(self, obs: Observation) -> ViewRequest:
         """Spin views while place docking may look, its target while it creeps, and the edge's
         end views (for every edge the robot may be coming in on) when the arrival may be
-        confirmed this frame."""
-        zoomed: set[int] = set()
+        confirmed this frame.
+
+        While place docking turns or creeps, this frame's :meth:`place` and :meth:`confirm`
+        read at most its target: nothing during a quarter turn that this frame does not end
+        (:meth:`place` turns on, or gives up with the belief off the goal, and then
+        :meth:`confirm` has nothing to confirm), the target only while creeping (a lost view
+        turns without looking). A frame that asks for nothing zooms nothing."""
         pl = self.placing
+        if self.p.place_dock and pl.phase == "turn" and not self._turn_ends(obs):
+            return ViewRequest()
+        if self.p.place_dock and pl.phase == "creep":
+            return ViewRequest(zoomed=frozenset({int(pl.target if pl.target is not None else 0)}))
+        zoomed: set[int] = set()
         if (self.p.place_dock and pl.phase in ("look", "turn", "creep")) or (
             pl.phase == "idle" and obs.at_goal
         ):
@@ -136,6 +146,13 @@ class Docking:
                     zoomed.update(self._edge_ends(edge))
             zoomed.update(self._spins(obs))
         return ViewRequest(zoomed=frozenset(zoomed))
+
+    def _turn_ends(self, obs: Observation) -> bool:
+        """Whether place docking's quarter turn reaches pi / 2 this frame (as
+        :meth:`_turned_away` and :meth:`place` will count it)."""
+        pl, last = self.placing, None if obs.previous is None else obs.previous.command
+        rad = pl.rad if last is None else pl.rad + abs(last.w) * obs.dt
+        return not rad < np.pi / 2
 
     def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
         return best_fit(views, candidates)
