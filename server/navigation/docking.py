@@ -137,15 +137,22 @@ class Docking:
             zoomed.update(self._spins(obs))
             if pl.target is not None:
                 zoomed.add(pl.target)
-        a = self.approach
+        return ViewRequest(zoomed=frozenset(zoomed | self._arrival_views(obs)))
+
+    def _arrival_views(self, obs: Observation) -> set[int]:
+        """The edge's end views (every edge the robot may be coming in on) and the spin views,
+        when :meth:`confirm` may confirm an arrival this frame."""
+        a, pl = self.approach, self.placing
         could_arrive = a.done or a.seconds + obs.dt >= self.p.approach_s
-        if self.p.dock and obs.at_goal and not pl.second_axis and could_arrive:
-            d = obs.decision
-            for edge in {a.edge, d.active_edge, d.action.edge}:
-                if edge is not None and self.rt.graph.edges[edge].target == self.goal:
-                    zoomed.update(self._edge_ends(edge))
-            zoomed.update(self._spins(obs))
-        return ViewRequest(zoomed=frozenset(zoomed))
+        if not (self.p.dock and obs.at_goal and not pl.second_axis and could_arrive):
+            return set()
+        zoomed: set[int] = set()
+        d = obs.decision
+        for edge in {a.edge, d.active_edge, d.action.edge}:
+            if edge is not None and self.rt.graph.edges[edge].target == self.goal:
+                zoomed.update(self._edge_ends(edge))
+        zoomed.update(self._spins(obs))
+        return zoomed
 
     def _turn_ends(self, obs: Observation) -> bool:
         """Whether place docking's quarter turn reaches pi / 2 this frame (as

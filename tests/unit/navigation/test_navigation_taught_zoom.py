@@ -15,9 +15,11 @@ from navigation_testkit import FEATURES, GRAPH, runtime
 from vision_testkit import scene, zoomed
 
 from server.navigation import runtime as runtime_module
-from server.navigation.observation import ViewRequest, match_views
+from server.navigation.observation import ViewNotRequested, ViewRequest, match_views
 from server.vision.features import extract
 from server.vision.homing import (
+    homing_offset,
+    homing_scale,
     homing_scale_taught_zoomed,
     homing_scale_zoomed,
     taught_zoom_levels,
@@ -124,3 +126,29 @@ def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> No
 def test_an_unknown_choice_is_refused_with_the_choices() -> None:
     with pytest.raises(ValueError, match="'off', 'out' or 'both'"):
         runtime(dock_taught_zooms="yes")
+
+
+def test_views_are_matched_when_read_once_each_and_as_made_at_once() -> None:
+    """Naive reference: the fits made when read equal those made directly; a requested view
+    never read costs nothing (here: its taught pixels are never read)."""
+    rt = runtime(dock_taught_zooms="out")
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    frame = zoomed(scene(IMAGES[7]), 1.2)
+    feats = extract(frame)
+    request = ViewRequest(
+        offsets=frozenset({7}), scales=frozenset({7}), zoomed=frozenset({6, 7, 8})
+    )
+    views = match_views(rt, frame, feats, request)
+    assert reads == [] and set(views.zoomed) == {6, 7, 8} and len(views.zoomed) == 3
+    fit = views.zoomed_scale(7)
+    assert reads == [7] and views.zoomed_scale(7) is fit
+    p = rt.params
+    levels = taught_zoom_levels(scene(IMAGES[7]), FEATURES[7], p.dock_zooms, p.features, "out")
+    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
+    assert fit == homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
+    assert views.offset(7) == homing_offset(feats, FEATURES[7])
+    assert views.scale(7) == homing_scale(feats, FEATURES[7])
+    with pytest.raises(ViewNotRequested):
+        views.zoomed_scale(9)
+    assert reads == [7]
