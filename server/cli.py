@@ -60,6 +60,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "server.bench.sim_retrieval",
         "image matching in the simulated home under changed light and furniture",
     ),
+    (
+        ("bench", "dock-views"),
+        "server.bench.dock_views",
+        "docking's scale fit on single views off the taught spot in the simulated homes",
+    ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
     (

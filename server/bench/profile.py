@@ -12,7 +12,8 @@ stack belongs to and :func:`stage_profile` adds the samples up per stage:
 * ``belief``: the tracker's predict and update (``Tracker.step``, the smoother);
 * ``policy``: the votes and the action (``decide``);
 * ``homing``: the frame matched against the taught images the behaviours ask for, with the zoom
-  levels of a docking step (``match_views``);
+  levels of a docking step (``match_views``; since the matches are made when a behaviour
+  reads them, ``LazyFits.__getitem__`` inside the behaviour);
 * ``motion``: behaviours, arbitration, docking, the task (the rest of ``Navigator.step``);
 * ``encode``: the answer built and serialised, observers told (``frame_result``, pydantic);
 * ``persist``: the task and belief snapshot written to the database;
@@ -61,7 +62,7 @@ MARKERS: tuple[tuple[str, frozenset[str]], ...] = (
     ("retrieval", frozenset({"TourRuntime.observe"})),
     ("belief", frozenset({"Tracker.step", "Tracker.update", "Tracker.predict"})),
     ("policy", frozenset({"decide"})),
-    ("homing", frozenset({"match_views"})),
+    ("homing", frozenset({"match_views", "LazyFits.__getitem__"})),
     ("encode", frozenset({"frame_result", "NavigationService._tell", "serialize_response"})),
     ("persist", frozenset({"NavigationService._persist"})),
 )

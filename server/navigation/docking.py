@@ -118,24 +118,48 @@ class Docking:
     def wants(self, obs: Observation) -> ViewRequest:
         """Spin views while place docking may look, its target while it creeps, and the edge's
         end views (for every edge the robot may be coming in on) when the arrival may be
-        confirmed this frame."""
-        zoomed: set[int] = set()
+        confirmed this frame.
+
+        While place docking turns or creeps, this frame's :meth:`place` and :meth:`confirm`
+        read at most its target: nothing during a quarter turn that this frame does not end
+        (:meth:`place` turns on, or gives up with the belief off the goal, and then
+        :meth:`confirm` has nothing to confirm), the target only while creeping (a lost view
+        turns without looking). A frame that asks for nothing zooms nothing."""
         pl = self.placing
+        if self.p.place_dock and pl.phase == "turn" and not self._turn_ends(obs):
+            return ViewRequest()
+        if self.p.place_dock and pl.phase == "creep":
+            return ViewRequest(zoomed=frozenset({int(pl.target if pl.target is not None else 0)}))
+        zoomed: set[int] = set()
         if (self.p.place_dock and pl.phase in ("look", "turn", "creep")) or (
             pl.phase == "idle" and obs.at_goal
         ):
             zoomed.update(self._spins(obs))
             if pl.target is not None:
                 zoomed.add(pl.target)
-        a = self.approach
+        return ViewRequest(zoomed=frozenset(zoomed | self._arrival_views(obs)))
+
+    def _arrival_views(self, obs: Observation) -> set[int]:
+        """The edge's end views (every edge the robot may be coming in on) and the spin views,
+        when :meth:`confirm` may confirm an arrival this frame."""
+        a, pl = self.approach, self.placing
         could_arrive = a.done or a.seconds + obs.dt >= self.p.approach_s
-        if self.p.dock and obs.at_goal and not pl.second_axis and could_arrive:
-            d = obs.decision
-            for edge in {a.edge, d.active_edge, d.action.edge}:
-                if edge is not None and self.rt.graph.edges[edge].target == self.goal:
-                    zoomed.update(self._edge_ends(edge))
-            zoomed.update(self._spins(obs))
-        return ViewRequest(zoomed=frozenset(zoomed))
+        if not (self.p.dock and obs.at_goal and not pl.second_axis and could_arrive):
+            return set()
+        zoomed: set[int] = set()
+        d = obs.decision
+        for edge in {a.edge, d.active_edge, d.action.edge}:
+            if edge is not None and self.rt.graph.edges[edge].target == self.goal:
+                zoomed.update(self._edge_ends(edge))
+        zoomed.update(self._spins(obs))
+        return zoomed
+
+    def _turn_ends(self, obs: Observation) -> bool:
+        """Whether place docking's quarter turn reaches pi / 2 this frame (as
+        :meth:`_turned_away` and :meth:`place` will count it)."""
+        pl, last = self.placing, None if obs.previous is None else obs.previous.command
+        rad = pl.rad if last is None else pl.rad + abs(last.w) * obs.dt
+        return not rad < np.pi / 2
 
     def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
         return best_fit(views, candidates)

@@ -8,8 +8,9 @@ Behaviours then decide from the :class:`Observation` alone; none of them calls i
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -24,14 +25,18 @@ from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
     HomingResult,
     ScaleResult,
+    ZoomLevel,
+    Zooms,
     homing_offset,
     homing_scale,
+    homing_scale_taught_zoomed,
     homing_scale_zoomed,
     zoom_levels,
 )
 from server.vision.index import Similarity
 
 FloatArray = npt.NDArray[np.float64]
+T = TypeVar("T")
 
 
 def elapsed(now: float, then: float) -> float:
@@ -230,19 +235,66 @@ def perceive(
     return replace(seen, views=match_views(runtime, frame.image, features, wants(seen)))
 
 
+class LazyFits(Mapping[int, T | None], Generic[T]):
+    """The fits of the requested taught images, each computed the first time a behaviour
+    reads it (then kept): a view requested but not read this frame costs nothing. The keys
+    are the requested images; reading another raises ``KeyError``."""
+
+    def __init__(self, images: Iterable[int], fit: Callable[[int], T | None]) -> None:
+        self._images = frozenset(int(i) for i in images)
+        self._fit = fit
+        self._done: dict[int, T | None] = {}
+
+    def __getitem__(self, image: int) -> T | None:
+        if image not in self._done:
+            if image not in self._images:
+                raise KeyError(image)
+            self._done[image] = self._fit(image)
+        return self._done[image]
+
+    def __contains__(self, image: object) -> bool:
+        return image in self._images
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(sorted(self._images))
+
+    def __len__(self) -> int:
+        return len(self._images)
+
+
 def match_views(
     runtime: TourRuntime,
     image: npt.NDArray[np.uint8],
     features: ImageFeatures,
     request: ViewRequest,
 ) -> Views:
-    """The frame matched against every requested taught image (zoom levels made only when a
-    zoomed fit is asked for)."""
+    """The frame matched against every requested taught image, each match made when a
+    behaviour first reads it (:class:`LazyFits`): the same fits, only those read.
+
+    A zoomed fit reads the frame's zoom levels (:func:`~server.vision.homing.zoom_levels`:
+    four corner extractions, made once per frame, and only on a frame that reads a zoomed
+    fit). With ``dock_taught_zooms`` (``"out"`` or ``"both"``) those zooms are read off the
+    taught image instead (:meth:`TourRuntime.taught_levels`, made once per taught image), the
+    rest off the frame (``"out"``: the frame zoomed in, two extractions once per frame); the
+    frame's four zooms still serve a taught image whose pixels the runtime cannot read."""
     taught = runtime.features
     p = runtime.params
-    levels = zoom_levels(image, features, p.dock_zooms, p.features) if request.zoomed else ()
+    made: dict[str, tuple[ZoomLevel, ...]] = {}
+
+    def frame_levels(which: Zooms) -> tuple[ZoomLevel, ...]:
+        if which not in made:
+            made[which] = zoom_levels(image, features, p.dock_zooms, p.features, which)
+        return made[which]
+
+    def zoomed(i: int) -> ScaleResult | None:
+        levels = runtime.taught_levels(i) if p.dock_taught_zooms != "off" else None
+        if levels is None:
+            return homing_scale_zoomed(frame_levels("both"), taught[i])
+        own = frame_levels("in") if p.dock_taught_zooms == "out" else ()
+        return homing_scale_taught_zoomed(features, levels, frame_levels=own)
+
     return Views(
-        offsets={i: homing_offset(features, taught[i]) for i in sorted(request.offsets)},
-        scales={i: homing_scale(features, taught[i]) for i in sorted(request.scales)},
-        zoomed={i: homing_scale_zoomed(levels, taught[i]) for i in sorted(request.zoomed)},
+        offsets=LazyFits(request.offsets, lambda i: homing_offset(features, taught[i])),
+        scales=LazyFits(request.scales, lambda i: homing_scale(features, taught[i])),
+        zoomed=LazyFits(request.zoomed, zoomed),
     )

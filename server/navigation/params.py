@@ -7,6 +7,7 @@ dotted for the nested parameter objects (``motion.unstick_s``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -155,6 +156,17 @@ class NavigationParams:
       race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
       44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
       m off now arrive (0.06-0.48 m, replayed alone).
+    * ``dock_taught_zooms`` ("off"): which of those zooms are made on the taught images
+      instead of the frame, once per taught image (:meth:`TourRuntime.taught_levels`,
+      :func:`server.vision.homing.homing_scale_taught_zoomed`): ``"out"`` the zooms out (the
+      taught image zoomed in by ``z`` stands for the frame zoomed out by ``1 / z``; two
+      extractions on a docking step instead of four), ``"both"`` all of them (none). Off by
+      default: either changes what docking reads and how the closed loop ends. Measured
+      2026-11-26 (docs/reliability.md), ``bench load`` server CPU per frame, alternated runs:
+      off 8.43 / 9.03 / 7.93 ms, ``"out"`` 8.18 / 7.99, ``"both"`` 6.12 / 5.78; closed loop
+      (apartment + studio, same, 10 trials each, seed 100): off 16/20 arrived, ``"out"`` 14/20,
+      ``"both"`` 13/20 (1 wrong place each). Single views 0.8 m behind the spot
+      (``bench dock-views``): ``"both"`` reads "short" less often than the frame's zooms.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -225,6 +237,7 @@ class NavigationParams:
     place_dock_turns: float = 1.25
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
+    dock_taught_zooms: Literal["off", "out", "both"] = "off"
     dock_second_axis: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0
@@ -260,3 +273,7 @@ class NavigationParams:
     def __post_init__(self) -> None:
         if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):
             raise ValueError(f"dock_zooms must be finite factors > 1, got {self.dock_zooms}")
+        if self.dock_taught_zooms not in ("off", "out", "both"):
+            raise ValueError(
+                f"dock_taught_zooms must be 'off', 'out' or 'both', got {self.dock_taught_zooms!r}"
+            )

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from functools import lru_cache
 
@@ -19,14 +21,23 @@ from server.policy.costs import cost_to_goal
 from server.policy.disambiguation import fine_profiles
 from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
+from server.vision.homing import ZoomLevel, Zooms, taught_zoom_levels
 from server.vision.index import Similarity, TourIndex
 
 FloatArray = npt.NDArray[np.float64]
+#: Reads a taught image's pixels by canonical index: ``(H, W, 3) uint8`` BGR, or ``None``
+#: when they cannot be had.
+TaughtPixels = Callable[[int], "npt.NDArray[np.uint8] | None"]
+#: Taught images whose zoom levels (:meth:`TourRuntime.taught_levels`) a runtime keeps, the
+#: least recently asked for forgotten first: about 9 or 18 kB each with the default features
+#: (2 or 4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
+ZOOM_CACHE_IMAGES = 256
 
 
 class TourRuntime:
-    """What the core derives from one snapshot of a tour. Immutable once built; shared by every
-    robot navigating the tour."""
+    """What the core derives from one snapshot of a tour. Immutable once built but for the
+    taught images' zoom levels it makes as docking asks for them (:meth:`taught_levels`,
+    under a lock); shared by every robot navigating the tour."""
 
     def __init__(
         self,
@@ -87,6 +98,44 @@ class TourRuntime:
             np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
         )
         self._ambiguity: dict[int, float] = {}
+        # how to read a taught image's pixels (set by whoever built the runtime), for
+        # NavigationParams.dock_taught_zooms; without it docking zooms the frame only
+        self.taught_pixels: TaughtPixels | None = None
+        self._zoomed: OrderedDict[int, tuple[ZoomLevel, ...] | None] = OrderedDict()
+        self._zoomed_lock = threading.Lock()
+
+    def taught_levels(self, image: int) -> tuple[ZoomLevel, ...] | None:
+        """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits
+        (:func:`~server.vision.homing.taught_zoom_levels` of ``params.dock_zooms``, those
+        ``params.dock_taught_zooms`` names: ``"out"`` the taught image zoomed in, standing for
+        the frame zoomed out; ``"both"`` zoomed in and out). Made from its pixels the first
+        time it is asked for (two or four corner extractions), then kept for the
+        :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` with ``dock_taught_zooms``
+        off or when the runtime cannot read the taught pixels (no :attr:`taught_pixels`, or it
+        gave ``None``)."""
+        p = self.params
+        if p.dock_taught_zooms == "off":
+            return None
+        with self._zoomed_lock:
+            if image in self._zoomed:
+                self._zoomed.move_to_end(image)
+                return self._zoomed[image]
+        read = self.taught_pixels
+        if read is None:
+            return None  # nothing to remember: pixels may be given later
+        pixels = read(image)
+        which: Zooms = "out" if p.dock_taught_zooms == "out" else "both"
+        levels = (
+            None
+            if pixels is None
+            else taught_zoom_levels(pixels, self.features[image], p.dock_zooms, p.features, which)
+        )
+        with self._zoomed_lock:  # two threads may have made it at once: the same levels
+            self._zoomed[image] = levels
+            self._zoomed.move_to_end(image)
+            while len(self._zoomed) > ZOOM_CACHE_IMAGES:
+                self._zoomed.popitem(last=False)
+        return levels
 
     def place_ambiguity(self, location: int, near_m: float = 1.0) -> float:
         """How much the place's spin images look like elsewhere in the tour: the mean, over its

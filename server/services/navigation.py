@@ -247,6 +247,7 @@ class NavigationService:
         )
         rt.taught_images = taught.n_images
         rt.mapped = refinement.mapped
+        rt.taught_pixels = self._pixels([int(i) for i in graph.image_ids])
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
@@ -293,6 +294,18 @@ class NavigationService:
         if not stored and not rt.mapped:
             ids = [int(i) for i in graph.image_ids]
             self.repo.set_entropies(tour_id, list(zip(ids, found.entropy.tolist(), strict=True)))
+
+    def _pixels(self, image_ids: list[int]) -> Callable[[int], np.ndarray | None]:
+        """Reads the pixels of ``image_ids[k]`` from the store (for docking's zoom levels,
+        :meth:`TourRuntime.taught_levels`); ``None`` for an image no longer stored."""
+
+        def read(k: int) -> np.ndarray | None:
+            try:
+                return decode_jpeg(self.repo.image_jpeg(image_ids[k]), self.limits)[0]
+            except DomainError:  # the image is gone (NotFound) or unreadable
+                return None
+
+        return read
 
     def _features(self, image_ids: list[int]) -> list[ImageFeatures]:
         """Features of the images ``image_ids``, in that order: stored ones are reused,

@@ -425,26 +425,41 @@ def grey_world(
     return np.ascontiguousarray(out, dtype=np.uint8)
 
 
-def _border_mask(params: FeatureParams, border: int) -> npt.NDArray[np.uint8]:
+#: A rectangle ``(x0, y0, x1, y1)`` in pixels at the working size, ends exclusive.
+Region = tuple[int, int, int, int]
+
+
+def _border_mask(
+    params: FeatureParams, border: int, region: Region | None = None
+) -> npt.NDArray[np.uint8]:
+    """255 where a corner may lie: ``border`` px inside the image and inside ``region``."""
     mask = np.zeros((params.height, params.width), np.uint8)
-    mask[border : params.height - border, border : params.width - border] = 255
+    x0, y0, x1, y1 = region if region is not None else (0, 0, params.width, params.height)
+    x0, y0 = max(x0, border), max(y0, border)
+    x1, y1 = min(x1, params.width - border), min(y1, params.height - border)
+    if x1 > x0 and y1 > y0:
+        mask[y0:y1, x0:x1] = 255
     return mask
 
 
 def detect_corners(
-    grey: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+    grey: npt.NDArray[np.uint8],
+    params: FeatureParams = FeatureParams(),
+    *,
+    region: Region | None = None,
 ) -> npt.NDArray[np.float32]:
     """Harris corners of a working-size grey image, strongest first: ``(K, 2) float32`` (x, y).
 
     The detector of the Harris kinds (:data:`HARRIS_DESCRIPTORS`); ``orb`` and ``teblid`` keep
-    16 px from the border for their 31 px patch."""
+    16 px from the border for their 31 px patch. ``region``: corners only inside this
+    rectangle as well (``border`` px inside it when it reaches the image border)."""
     border = params.border if params.descriptor == "grad36" else max(params.border, 16)
     corners = cv2.goodFeaturesToTrack(
         grey,
         maxCorners=params.n_features,
         qualityLevel=params.quality,
         minDistance=params.min_distance,
-        mask=_border_mask(params, border),
+        mask=_border_mask(params, border, region),
         blockSize=params.harris_block,
         useHarrisDetector=True,
         k=params.harris_k,
@@ -696,14 +711,20 @@ def extract(image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams(
 
 
 def extract_corners(
-    image: npt.NDArray[np.uint8], params: FeatureParams = FeatureParams()
+    image: npt.NDArray[np.uint8],
+    params: FeatureParams = FeatureParams(),
+    *,
+    region: Region | None = None,
 ) -> ImageFeatures:
     """The corners and descriptors of one frame, without the global signature: what matching
     and homing (:mod:`server.vision.homing`) read, for about 60 % of the cost of
     :func:`extract`. Keypoints and descriptors equal those :func:`extract` gives; the
-    ``signature`` is empty, so these features cannot be added to or queried in an index."""
+    ``signature`` is empty, so these features cannot be added to or queried in an index.
+
+    ``region`` ``(x0, y0, x1, y1)``, px at the working size: only corners inside it (the
+    Harris kinds pick their ``n_features`` strongest there; the others drop the rest)."""
     grey = cv2.cvtColor(_working_size(image, params), cv2.COLOR_BGR2GRAY)
-    corners, desc = _corners_and_descriptors(np.asarray(grey, np.uint8), params)
+    corners, desc = _corners_and_descriptors(np.asarray(grey, np.uint8), params, region)
     return ImageFeatures(
         keypoints=corners,
         descriptors=desc,
@@ -715,11 +736,16 @@ def extract_corners(
 
 
 def _corners_and_descriptors(
-    grey: npt.NDArray[np.uint8], params: FeatureParams
+    grey: npt.NDArray[np.uint8], params: FeatureParams, region: Region | None = None
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
     if params.descriptor not in HARRIS_DESCRIPTORS:
-        return opencv_features(grey, params)
-    corners = detect_corners(grey, params)
+        pts, desc = opencv_features(grey, params)
+        if region is None:
+            return pts, desc
+        x0, y0, x1, y1 = region
+        inside = (pts[:, 0] >= x0) & (pts[:, 0] < x1) & (pts[:, 1] >= y0) & (pts[:, 1] < y1)
+        return np.ascontiguousarray(pts[inside]), np.ascontiguousarray(desc[inside])
+    corners = detect_corners(grey, params, region=region)
     if params.descriptor == "grad36":
         return corners, grad36_descriptors(grey, corners, params)
     return harris_descriptors(grey, corners, params.descriptor)

@@ -278,3 +278,23 @@ def test_steps_of_many_robots_run_at_most_concurrent_steps_at_once(
         t.join()
     assert codes == [200] * (len(names) * len(frames))
     assert most[0] == at_once
+
+
+def test_a_tour_s_runtime_reads_its_taught_images_from_the_store(
+    taught: tuple[Api, dict[str, str], int],
+) -> None:
+    """For docking's zooms on the taught images (``dock_taught_zooms``): the runtime's reader
+    gives the stored frame of every canonical image, as the frame route decoded it."""
+    import numpy as np
+
+    from server.imaging import decode_jpeg
+
+    api, _, tour_id = taught
+    services = api.client.app.state.services  # type: ignore[attr-defined]
+    rt = services.navigation.runtime(tour_id)
+    assert rt.taught_pixels is not None
+    for k in (0, 5, rt.graph.n_images - 1):
+        stored = services.repo.image_jpeg(int(rt.graph.image_ids[k]))
+        pixels = rt.taught_pixels(k)
+        assert pixels is not None
+        assert np.array_equal(pixels, decode_jpeg(stored, services.limits)[0])

@@ -38,6 +38,15 @@ def test_the_outer_marker_wins() -> None:
     stack = [ROOT, STEP, "match_views (o.py:1)", "zoom_levels (h.py:1)", "extract (f.py:1)"]
     assert stage_of(stack) == "homing"
     assert stage_of([ROOT, STEP, "extract (f.py:1)", "match_views (o.py:1)"]) == "features"
+    # matched when read: inside a behaviour, below Navigator.step
+    lazy = [
+        ROOT,
+        STEP,
+        "Docking.place (d.py:1)",
+        "LazyFits.__getitem__ (o.py:1)",
+        "zoomed (o.py:2)",
+    ]
+    assert stage_of([*lazy, "zoom_levels (h.py:1)", "extract (f.py:1)"]) == "homing"
 
 
 def test_unmarked_stacks_are_motion_inside_a_step_and_http_outside() -> None:

@@ -49,8 +49,17 @@ FEATURES = [extract(scene(int(i))) for i in GRAPH.image_ids]
 
 
 def runtime(**changes: object) -> TourRuntime:
+    """The synthetic tour's runtime, able to read its taught pixels as the server's is (the
+    scenes are rendered again on demand; read only with ``dock_taught_zooms``)."""
     params = replace(NavigationParams(), **changes)  # type: ignore[arg-type]
-    return TourRuntime(GRAPH, FEATURES, params)
+    return with_pixels(TourRuntime(GRAPH, FEATURES, params))
+
+
+def with_pixels(rt: TourRuntime) -> TourRuntime:
+    """``rt`` able to read its taught images' pixels (each graph image id is the seed of its
+    synthetic scene), as the server's runtimes are."""
+    rt.taught_pixels = lambda k: scene(int(rt.graph.image_ids[k]))
+    return rt
 
 
 def observation(

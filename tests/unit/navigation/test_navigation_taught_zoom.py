@@ -1,0 +1,154 @@
+"""Docking's zoom levels of the taught images (``dock_taught_zooms``): made once per taught
+image from its pixels, kept within a bound, and the frame's own zooms when the pixels cannot
+be read or the option is off (the default)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "vision"))
+from navigation_testkit import FEATURES, GRAPH, runtime
+from vision_testkit import scene, zoomed
+
+from server.navigation import runtime as runtime_module
+from server.navigation.observation import ViewNotRequested, ViewRequest, match_views
+from server.vision.features import extract
+from server.vision.homing import (
+    homing_offset,
+    homing_scale,
+    homing_scale_taught_zoomed,
+    homing_scale_zoomed,
+    taught_zoom_levels,
+    zoom_levels,
+)
+
+IMAGES = [int(i) for i in GRAPH.image_ids]
+
+
+def counting_reader(reads: list[int]):  # type: ignore[no-untyped-def]
+    def read(k: int) -> np.ndarray:
+        reads.append(k)
+        return scene(IMAGES[k])
+
+    return read
+
+
+def test_levels_are_made_once_per_taught_image_from_its_pixels() -> None:
+    rt = runtime(dock_taught_zooms="out")
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    levels = rt.taught_levels(5)
+    assert levels is not None and rt.taught_levels(5) is levels
+    assert reads == [5]
+    p = rt.params
+    reference = taught_zoom_levels(scene(IMAGES[5]), FEATURES[5], p.dock_zooms, p.features, "out")
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1 / 1.3, 1 / 1.69])
+    assert levels[0].features is FEATURES[5]
+    assert all(a.features == b.features for a, b in zip(levels, reference, strict=True))
+
+
+def test_the_least_recently_asked_for_are_forgotten_first(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(runtime_module, "ZOOM_CACHE_IMAGES", 2)
+    rt = runtime(dock_taught_zooms="out")
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    for k in (1, 2, 1, 3, 1, 2):  # 2 is forgotten when 3 comes, 3 when 2 comes back
+        rt.taught_levels(k)
+    assert reads == [1, 2, 3, 2]
+    assert len(rt._zoomed) == 2
+
+
+def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -> None:
+    rt = runtime(dock_taught_zooms="both")
+    rt.taught_pixels = None
+    assert rt.taught_levels(3) is None
+    assert len(rt._zoomed) == 0
+    rt.taught_pixels = lambda k: None  # an image no longer stored
+    assert rt.taught_levels(3) is None and rt.taught_levels(3) is None
+
+
+def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missing() -> None:
+    """Naive reference: each requested image's zoomed fit reads the frame zoomed in and the
+    taught image zoomed in when its pixels can be read, the frame's four zooms otherwise."""
+    rt = runtime(dock_taught_zooms="out")
+    frame = zoomed(scene(IMAGES[7]), 1.4)
+    feats = extract(frame)
+    missing = {8}
+    rt.taught_pixels = lambda k: None if k in missing else scene(IMAGES[k])
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({6, 7, 8})))
+    p = rt.params
+    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
+    for k in (6, 7):
+        levels = taught_zoom_levels(scene(IMAGES[k]), FEATURES[k], p.dock_zooms, p.features, "out")
+        expected = homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
+        assert views.zoomed_scale(k) == expected
+    assert views.zoomed_scale(8) == homing_scale_zoomed(frame_levels, FEATURES[8])
+    fit = views.zoomed_scale(7)
+    assert fit is not None and fit.inliers >= 20
+    assert fit.scale == pytest.approx(1 / 1.4, rel=0.03)  # the taught view looks smaller
+
+
+def test_with_both_every_zoom_is_the_taught_image_s() -> None:
+    rt = runtime(dock_taught_zooms="both")
+    frame = zoomed(scene(IMAGES[3]), 1.5)
+    feats = extract(frame)
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({3})))
+    p = rt.params
+    levels = rt.taught_levels(3)
+    assert levels is not None
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69])
+    expected = taught_zoom_levels(scene(IMAGES[3]), FEATURES[3], p.dock_zooms, p.features)
+    assert all(a.features == b.features for a, b in zip(levels, expected, strict=True))
+    assert views.zoomed_scale(3) == homing_scale_taught_zoomed(feats, levels)
+
+
+def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
+    rt = runtime()
+    assert rt.params.dock_taught_zooms == "off"
+    assert rt.taught_levels(6) is None
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    frame = zoomed(scene(IMAGES[7]), 1 / 1.4)
+    feats = extract(frame)
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({6, 7})))
+    p = rt.params
+    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    for k in (6, 7):
+        assert views.zoomed_scale(k) == homing_scale_zoomed(frame_levels, FEATURES[k])
+    assert reads == []
+
+
+def test_an_unknown_choice_is_refused_with_the_choices() -> None:
+    with pytest.raises(ValueError, match="'off', 'out' or 'both'"):
+        runtime(dock_taught_zooms="yes")
+
+
+def test_views_are_matched_when_read_once_each_and_as_made_at_once() -> None:
+    """Naive reference: the fits made when read equal those made directly; a requested view
+    never read costs nothing (here: its taught pixels are never read)."""
+    rt = runtime(dock_taught_zooms="out")
+    reads: list[int] = []
+    rt.taught_pixels = counting_reader(reads)
+    frame = zoomed(scene(IMAGES[7]), 1.2)
+    feats = extract(frame)
+    request = ViewRequest(
+        offsets=frozenset({7}), scales=frozenset({7}), zoomed=frozenset({6, 7, 8})
+    )
+    views = match_views(rt, frame, feats, request)
+    assert reads == [] and set(views.zoomed) == {6, 7, 8} and len(views.zoomed) == 3
+    fit = views.zoomed_scale(7)
+    assert reads == [7] and views.zoomed_scale(7) is fit
+    p = rt.params
+    levels = taught_zoom_levels(scene(IMAGES[7]), FEATURES[7], p.dock_zooms, p.features, "out")
+    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
+    assert fit == homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
+    assert views.offset(7) == homing_offset(feats, FEATURES[7])
+    assert views.scale(7) == homing_scale(feats, FEATURES[7])
+    with pytest.raises(ViewNotRequested):
+        views.zoomed_scale(9)
+    assert reads == [7]
