@@ -7,9 +7,14 @@ import hmac
 import secrets
 
 
+#: What every issued token starts with: never a "-" (a token that began with one was read as an
+#: option by ``robot teach --token``), and easy to find for secret scanners.
+TOKEN_PREFIX = "tr_"
+
+
 def new_token() -> str:
-    """A fresh bearer token: 256 random bits, URL-safe text."""
-    return secrets.token_urlsafe(32)
+    """A fresh bearer token: ``tr_`` and 256 random bits as URL-safe text."""
+    return TOKEN_PREFIX + secrets.token_urlsafe(32)
 
 
 def hash_token(token: str) -> str:
