@@ -22,7 +22,7 @@ from server.policy.disambiguation import DisambiguationParams
 from server.policy.voting import PolicyParams
 from server.vision.distinctiveness import DistinctivenessParams
 from server.vision.features import FeatureParams
-from server.vision.index import EngineParams
+from server.vision.index import CHANGED_WEIGHTS, EngineParams
 
 ROBUST_WEIGHTS: tuple[float, ...] = (0.1, 0.0, 0.1, 0.1, 0.7)
 """First-pass weights of the blocks (histogram, thumbnail, descriptor mean, descriptor variance,
@@ -82,6 +82,11 @@ class LearningParams:
     def __post_init__(self) -> None:
         if self.experiences_per_image < 0 or self.run_steps < 0:
             raise ValueError("experiences_per_image and run_steps must be >= 0")
+
+
+def two_appearance_models() -> EngineParams:
+    """The engine navigation uses: the defaults with the change-robust second model."""
+    return EngineParams(changed_weights=CHANGED_WEIGHTS)
 
 
 @dataclass(frozen=True)
@@ -209,6 +214,12 @@ class NavigationParams:
       task failed and must re-localise.
     * ``max_dt_s`` (1.0 s): a longer gap between frames is treated as this for prediction.
     * ``history`` (200): steps kept per robot for the dashboard and debugging.
+    * ``engine`` (two appearance models): the engine scores every frame with the tour's
+      learned weights and with the change-robust ones (:data:`CHANGED_WEIGHTS`), and the
+      tracker weighs them (:mod:`server.belief.appearance`): the tour's model alone while the
+      frames look like the tour in its own light, both once a stretch of frames does not (a
+      season, the lamps). ``engine.changed_weights=null`` keeps one model, as before
+      2026-11-26 (docs/localize.md).
     * ``signature_weights`` (None): the engine's first-pass block weights used for navigation;
       ``None`` = the weights learned for the tour. Learned from a single teaching traversal they
       cannot see a change of light (~0.75 on the colour histogram): the simulated lighting
@@ -259,7 +270,7 @@ class NavigationParams:
     history: int = 200
     signature_weights: tuple[float, ...] | None = None
     features: FeatureParams = field(default_factory=FeatureParams)
-    engine: EngineParams = field(default_factory=EngineParams)
+    engine: EngineParams = field(default_factory=two_appearance_models)
     transitions: TransitionParams = field(default_factory=TransitionParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     policy: PolicyParams = field(default_factory=PolicyParams)

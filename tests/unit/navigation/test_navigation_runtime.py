@@ -35,7 +35,8 @@ def test_related_states_are_those_that_share_a_place() -> None:
 def test_a_taught_view_is_familiar_and_a_single_model_gives_no_familiarity() -> None:
     from vision_testkit import scene
 
-    two = runtime(engine=replace(EngineParams(), changed_weights=CHANGED_WEIGHTS))
+    two = runtime()  # navigation's default: two appearance models
+    assert two.params.engine.changed_weights == CHANGED_WEIGHTS
     two.index.set_weights(learn_weights(two.index, params=two.params.engine))
     taught = FEATURES[7]
     sims, lik = two.observe(taught)
@@ -43,7 +44,7 @@ def test_a_taught_view_is_familiar_and_a_single_model_gives_no_familiarity() -> 
     assert two.familiarity(sims) == 0.0
     unseen = [two.familiarity(two.observe(extract(scene(s)))[0]) for s in range(5000, 5010)]
     assert all(0.0 <= q <= 1.0 for q in unseen) and np.mean(unseen) > 0.2  # unseen scenes
-    one = runtime()
+    one = runtime(engine=replace(EngineParams(), changed_weights=None))
     assert np.isnan(one.familiarity(one.observe(taught)[0]))
 
 
