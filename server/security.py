@@ -6,7 +6,6 @@ import hashlib
 import hmac
 import secrets
 
-
 #: What every issued token starts with: never a "-" (a token that began with one was read as an
 #: option by ``robot teach --token``), and easy to find for secret scanners.
 TOKEN_PREFIX = "tr_"

@@ -122,9 +122,9 @@ class EngineParams:
         changed_weights: weights of a second appearance model that holds when the light or
             the season changed (:data:`CHANGED_WEIGHTS`); :meth:`TourIndex.query_models`
             scores a frame with both, and the belief tracker weighs them by how well each
-            explains the camera (:mod:`server.belief.appearance`). ``None`` (the engine's
-            default): one model only. Navigation (``NavigationParams.engine``) and ``bench
-            localize`` use both (docs/localize.md).
+            explains the camera (:mod:`server.belief.appearance`). ``None`` (the default):
+            one model only. ``bench localize`` uses both; navigation only when set
+            (:func:`server.navigation.params.two_appearance_models`, docs/localize.md).
         feature_weight: weight of ``e_features`` (mean nearest-corner distance, ~[0, 1]).
         signature_weight: weight of the first-pass signature distance (~[0, 4]) in ``e``.
         symmetric: ``e_features`` also averages each candidate corner's nearest query corner

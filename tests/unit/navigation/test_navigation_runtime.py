@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 from navigation_testkit import FEATURES, GRAPH, runtime
 
+from server.navigation.params import two_appearance_models
 from server.navigation.runtime import related_states
 from server.vision.features import extract
 from server.vision.index import CHANGED_WEIGHTS, EngineParams
@@ -35,7 +36,7 @@ def test_related_states_are_those_that_share_a_place() -> None:
 def test_a_taught_view_is_familiar_and_a_single_model_gives_no_familiarity() -> None:
     from vision_testkit import scene
 
-    two = runtime()  # navigation's default: two appearance models
+    two = runtime(engine=two_appearance_models())
     assert two.params.engine.changed_weights == CHANGED_WEIGHTS
     two.index.set_weights(learn_weights(two.index, params=two.params.engine))
     taught = FEATURES[7]
