@@ -592,7 +592,9 @@ def replay(
     fp = index.params.features
     levels = (
         index.error_levels(related_states(graph))
-        if observations is None and index.params.changed_weights is not None
+        if observations is None
+        and index.params.changed_weights is not None
+        and tracker_params.appearance.change_gate
         else np.zeros(0)
     )
     out = Replay()

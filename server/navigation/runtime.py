@@ -235,7 +235,8 @@ class TourRuntime:
 
     def error_levels(self) -> FloatArray:
         """The tour's error levels (:meth:`TourIndex.error_levels`, states related when they
-        share a place), computed once per set of weights (a few hundred ms on a home's tour)."""
+        share a place), computed once per set of weights (a query per probe: 0.5-0.8 s of CPU on a
+        111-image route, 3.7-4.1 s on 1800 images of 361 states, docs/localize.md)."""
         key = self.index.weights.tobytes()
         if self._levels is None or self._levels[0] != key:
             self._levels = (key, self.index.error_levels(related_states(self.graph)))

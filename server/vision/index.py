@@ -892,12 +892,13 @@ class TourIndex:
             return np.zeros(0)
         ns = int(states.max()) + 1
         rel = np.eye(ns, dtype=bool) if related is None else np.asarray(related, bool)
-        if rel.shape[0] != rel.shape[1] or rel.shape[0] < ns:
+        if rel.ndim != 2 or rel.shape[0] != rel.shape[1] or rel.shape[0] < ns:
             raise ValueError(f"related must be (n_states, n_states) with n_states >= {ns}")
+        rel = rel | np.eye(len(rel), dtype=bool)  # a state is always related to itself
         out: list[float] = []
         probes = np.unique(np.linspace(0, n - 1, min(int(n_probe), n)).round().astype(np.int64))
         for i in probes:
-            exclude = rel[int(states[i])] | np.eye(len(rel), dtype=bool)[int(states[i])]
+            exclude = rel[int(states[i])]
             sim = self._query(self.features(int(i)), len(rel), (self._weights,), exclude=exclude)
             if math.isfinite(sim[0].best_error):
                 out.append(sim[0].best_error)
@@ -962,7 +963,8 @@ class TourIndex:
         else:
             e_feat = self._feature_errors_from(dist)
             e_feat[~valid] = 1.0
-        out = []
+        out: list[Similarity] = []
+        best_errors: list[float] = []
         for dc, cand in zip(dcand, cands, strict=True):
             pos = np.searchsorted(union, cand)
             e = p.feature_weight * e_feat[pos] + p.signature_weight * dc.astype(np.float64)
@@ -973,8 +975,8 @@ class TourIndex:
                 sub = None if dist is None else dist[:, pos[verify]]
                 e_geo[verify] = self._geometric_errors(features, cand[verify], sub)
                 e = e + p.geometric_weight * e_geo
-            sim = self._similarity(cand, _normalise_errors(e, p.floor), ns)
-            out.append(dataclasses.replace(sim, best_error=float(e.min())))
+            out.append(self._similarity(cand, _normalise_errors(e, p.floor), ns))
+            best_errors.append(float(e.min()))
         t2 = time.perf_counter()
         return tuple(
             dataclasses.replace(
@@ -982,8 +984,9 @@ class TourIndex:
                 first_pass_ms=(t1 - t0) * 1e3,
                 second_pass_ms=(t2 - t1) * 1e3,
                 n_scored=n_scored,
+                best_error=b,
             )
-            for sim in out
+            for sim, b in zip(out, best_errors, strict=True)
         )
 
     def _fold(self, cand: IntArray, sim_c: FloatArray) -> tuple[IntArray, FloatArray]:
