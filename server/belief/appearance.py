@@ -29,9 +29,10 @@ says whether the light changed at all, on a slower time scale than one frame:
   normalisation) among the tour's own **error levels**, the best errors of taught images
   against the places they are not at (:meth:`server.vision.index.TourIndex.error_levels`):
   low when the frame matches the tour better than the tour matches itself at wrong places;
-* the tracker smooths ``q`` over the last frames (``change_rate``): one view off the taught
-  path, or one look-alike, says little; a whole stretch that matches nothing as the tour was
-  taught says the light (the season, the lamps) changed;
+* the tracker smooths ``q`` over the last frames (``change_rate``), starting from
+  ``change_prior`` (0: the tour's light until shown otherwise): one view off the taught path,
+  or one look-alike, says little; a whole stretch that matches nothing as the tour was taught
+  says the light (the season, the lamps) changed;
 * the **change evidence** ``g`` (:func:`change_evidence`) rises from 0 at ``change_low`` to 1
   at ``change_high`` of the smoothed ``q``. At ``g`` = 0 the other models neither gain trust
   (:func:`gated_scores`) nor enter the mixture (:func:`gated_mixture`): the belief update is the
@@ -71,6 +72,14 @@ class AppearanceParams:
             Nordland across seasons 0.87-0.92).
         change_gate: apply the change evidence (``False``: the models compete on every
             frame, as before 2026-11-26).
+        change_prior: the running mean's value before the first frame (a fresh task, or a
+            belief restored without the tracker's memory). 0: the light is the tour's until a
+            stretch of frames says otherwise (frames that all match nothing, familiarity ~0.9,
+            raise it to ``change_low`` in 16 frames and to ``change_high`` in 21 at a
+            ``change_rate`` of 0.05). Starting from the first frame's own familiarity
+            instead opened the gate at once for a robot that started facing a bare wall, and
+            the change-robust model, which cannot tell the hall from the office, took half
+            the likelihood (docs/localize.md).
     """
 
     memory: float = 0.9
@@ -79,6 +88,7 @@ class AppearanceParams:
     change_low: float = 0.5
     change_high: float = 0.6
     change_gate: bool = True
+    change_prior: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.memory < 1.0:
@@ -89,6 +99,8 @@ class AppearanceParams:
             raise ValueError("change_rate must lie in (0, 1]")
         if not 0.0 <= self.change_low < self.change_high <= 1.0:
             raise ValueError("change_low < change_high must both lie in [0, 1]")
+        if not 0.0 <= self.change_prior <= 1.0:
+            raise ValueError("change_prior must lie in [0, 1]")
 
 
 def model_scores(predicted: npt.ArrayLike, likelihoods: npt.ArrayLike) -> FloatArray:

@@ -51,6 +51,7 @@ __all__ = [
     "BeliefSummary",
     "InvalidLikelihoodError",
     "Tracker",
+    "TrackerMemory",
     "TrackerParams",
     "ZeroLikelihoodError",
     "fine_likelihood",
@@ -273,6 +274,67 @@ class BeliefSummary:
         return self.top_states[0][0]
 
 
+@dataclass(frozen=True)
+class TrackerMemory:
+    """What a tracker remembers of the frames besides its belief, so a belief restored after
+    a restart (:meth:`Tracker.set_belief`) goes on as the tracker would have: without it the
+    appearance models would start level again and the change evidence from the next frame
+    alone (a robot facing a wall as the server came back opened the gate at once and the
+    change-robust model took half the likelihood, docs/localize.md).
+
+    * ``appearance``: ``(K,)`` log posterior over the appearance models (empty: none yet).
+    * ``familiar``: running mean of the frames' familiarity (NaN: none yet).
+    * ``evidence_fast`` / ``evidence_slow``: the EMAs of the evidence ratio (< 0: no frame yet).
+
+    :meth:`to_dict` / :meth:`from_dict` give it a JSON-safe form (NaN as ``None``).
+    """
+
+    appearance: tuple[float, ...] = ()
+    familiar: float = math.nan
+    evidence_fast: float = -1.0
+    evidence_slow: float = -1.0
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain floats and lists, NaN as ``None`` (strict JSON has no NaN)."""
+
+        def num(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        return {
+            "appearance": [num(float(x)) for x in self.appearance],
+            "familiar": num(self.familiar),
+            "evidence_fast": num(self.evidence_fast),
+            "evidence_slow": num(self.evidence_slow),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, object]) -> TrackerMemory:
+        """The inverse of :meth:`to_dict`. Raises :class:`BeliefError` on anything else."""
+
+        def num(x: object, missing: float) -> float:
+            if x is None:
+                return missing
+            if isinstance(x, bool) or not isinstance(x, int | float):
+                raise BeliefError(f"tracker memory: {x!r} is not a number")
+            return float(x)
+
+        try:
+            raw = data.get("appearance") or []
+            if not isinstance(raw, list):
+                raise BeliefError("tracker memory: appearance must be a list")
+            appearance = tuple(num(x, math.nan) for x in raw)
+            if not all(math.isfinite(x) for x in appearance):
+                raise BeliefError("tracker memory: appearance must be finite")
+            return cls(
+                appearance=appearance,
+                familiar=num(data.get("familiar"), math.nan),
+                evidence_fast=num(data.get("evidence_fast"), -1.0),
+                evidence_slow=num(data.get("evidence_slow"), -1.0),
+            )
+        except AttributeError:
+            raise BeliefError("tracker memory must be a mapping") from None
+
+
 def summarise(
     belief: FloatArray,
     model: BeliefModel,
@@ -370,8 +432,20 @@ class Tracker:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
 
-    def set_belief(self, belief: npt.ArrayLike) -> None:
-        """Replace the belief (e.g. "the robot is in the kitchen"); it is normalised."""
+    def memory(self) -> TrackerMemory:
+        """What the tracker remembers besides its belief (:class:`TrackerMemory`), to restore
+        with :meth:`set_belief` after a restart."""
+        return TrackerMemory(
+            appearance=tuple(float(x) for x in self._appearance),
+            familiar=self._familiar,
+            evidence_fast=self._fast,
+            evidence_slow=self._slow,
+        )
+
+    def set_belief(self, belief: npt.ArrayLike, memory: TrackerMemory | None = None) -> None:
+        """Replace the belief (e.g. "the robot is in the kitchen"); it is normalised.
+        ``memory`` (from :meth:`memory`, e.g. persisted with the belief): go on with what the
+        tracker remembered of the frames too; ``None``: as after :meth:`reset`."""
         b = np.asarray(belief, dtype=np.float64)
         if b.shape != (self.model.n_fine,) or not np.all(np.isfinite(b)) or np.any(b < 0):
             raise BeliefError(f"belief must be ({self.model.n_fine},), finite and >= 0")
@@ -380,6 +454,10 @@ class Tracker:
             raise BeliefError("belief must have positive mass")
         self.reset()
         self._belief = b / total
+        if memory is not None:
+            self._appearance = np.asarray(memory.appearance, np.float64)
+            self._familiar = float(memory.familiar)
+            self._fast, self._slow = float(memory.evidence_fast), float(memory.evidence_slow)
         self._run = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
@@ -429,9 +507,8 @@ class Tracker:
             if math.isfinite(familiarity):
                 rate = p.appearance.change_rate
                 known = math.isfinite(self._familiar)
-                self._familiar = (
-                    self._familiar + rate * (familiarity - self._familiar) if known else familiarity
-                )
+                start = self._familiar if known else p.appearance.change_prior
+                self._familiar = start + rate * (familiarity - start)
             change = change_evidence(self._familiar, p.appearance)
             scores = gated_scores(scores, change)
             self._appearance = update_log_posterior(self._appearance, scores, p.appearance)

@@ -151,11 +151,11 @@ class Navigator:
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed;
         the task's behaviours start afresh on it)."""
-        old = self.tracker.belief
+        old, memory = self.tracker.belief, self.tracker.memory()
         self.runtime, self.params = runtime, runtime.params
         self.tracker = Tracker(runtime.model, runtime.params.tracker)
         if old.shape == (runtime.model.n_fine,):
-            self.tracker.set_belief(old)
+            self.tracker.set_belief(old, memory)
         self.mcl = localiser(runtime)
         if self.task is not None:
             self.crew = Crew(runtime, self.task.goal)

@@ -214,13 +214,13 @@ class NavigationParams:
       task failed and must re-localise.
     * ``max_dt_s`` (1.0 s): a longer gap between frames is treated as this for prediction.
     * ``history`` (200): steps kept per robot for the dashboard and debugging.
-    * ``engine`` (one appearance model): ``engine=two_appearance_models()`` (or
-      ``engine.changed_weights=[0,0,0,0,1]``) scores every frame also with the change-robust
-      weights (:data:`CHANGED_WEIGHTS`), weighed by the tracker behind the change gate
+    * ``engine`` (two appearance models, :func:`two_appearance_models`): every frame is
+      scored with the tour's learned weights and with the change-robust weights
+      (:data:`CHANGED_WEIGHTS`), weighed by the tracker behind the change gate
       (:mod:`server.belief.appearance`): the tour's model alone while the frames look like
-      the tour in its own light, both once a stretch of frames does not. Not the default yet:
-      with it, the closed-loop crash test (a server killed at step 40 and restarted) arrived
-      5 m from its goal (docs/localize.md).
+      the tour in its own light, both once a stretch of frames does not (a changed season or
+      lamps). ``engine.changed_weights=null`` keeps the tour's model alone, as before
+      2026-11-28 (docs/localize.md: Nordland across seasons 0.168 / 0.668 with one model).
     * ``signature_weights`` (None): the engine's first-pass block weights used for navigation;
       ``None`` = the weights learned for the tour. Learned from a single teaching traversal they
       cannot see a change of light (~0.75 on the colour histogram): the simulated lighting
@@ -271,7 +271,7 @@ class NavigationParams:
     history: int = 200
     signature_weights: tuple[float, ...] | None = None
     features: FeatureParams = field(default_factory=FeatureParams)
-    engine: EngineParams = field(default_factory=EngineParams)
+    engine: EngineParams = field(default_factory=two_appearance_models)
     transitions: TransitionParams = field(default_factory=TransitionParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     policy: PolicyParams = field(default_factory=PolicyParams)

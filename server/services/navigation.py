@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import logging
 import threading
 import time
@@ -20,7 +21,7 @@ from server import schemas
 from server.belief.junctions import refine
 from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.mcl import MclEstimate
-from server.belief.tracker import BeliefSummary
+from server.belief.tracker import BeliefError, BeliefSummary, TrackerMemory
 from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
@@ -361,7 +362,7 @@ class NavigationService:
         if row.belief is not None and row.belief_images == rt.graph.n_images:
             belief = np.frombuffer(row.belief, dtype=np.float32).astype(np.float64)
             if belief.shape == (rt.model.n_fine,) and belief.sum() > 0:
-                session.tracker.set_belief(belief)
+                session.tracker.set_belief(belief, _memory(row.belief_memory))
         goal = _location_index(rt.graph, row.goal_location_id)
         if goal is not None:
             session.resume_task(
@@ -412,6 +413,7 @@ class NavigationService:
         rt = session.runtime
         tour_id = self._tour_of[session.robot]
         snapshot = session.tracker.belief.astype(np.float32).tobytes() if belief else None
+        memory = json.dumps(session.tracker.memory().to_dict()) if belief else None
         self.repo.save_navigation(
             NavigationRow(
                 robot=session.robot,
@@ -425,6 +427,7 @@ class NavigationService:
                 steps=task.steps,
                 belief=snapshot,
                 belief_images=rt.graph.n_images if belief else None,
+                belief_memory=memory,
             )
         )
         if belief:
@@ -608,6 +611,18 @@ def learned_scale(repo: Repo, tour_id: int, n_edges: int) -> np.ndarray | None:
         except ValueError:
             continue  # learned before the tour changed shape: no longer applies
     return advance_scale(total) if used else None
+
+
+def _memory(stored: str | None) -> TrackerMemory | None:
+    """The tracker memory saved with a belief snapshot (``None``: none saved, as in rows from
+    before migration 8, or unreadable: the tracker then starts its memory afresh)."""
+    if stored is None:
+        return None
+    try:
+        return TrackerMemory.from_dict(json.loads(stored))
+    except (ValueError, BeliefError):
+        log.warning("a stored tracker memory could not be read; the tracker starts it afresh")
+        return None
 
 
 def _location_index(graph: TourGraph, location_id: int) -> int | None:

@@ -424,6 +424,16 @@ def junctions(db: Any) -> None:
     db.execute("CREATE INDEX junctions_change ON junctions(change_id)")
 
 
+@migration(8)
+def belief_memory(db: Any) -> None:
+    """What the tracker remembers besides the belief (``navigation.belief_memory``, JSON of
+    :class:`server.belief.tracker.TrackerMemory`: the belief over appearance models, the
+    running familiarity, the evidence EMAs), saved with each belief snapshot so a restarted
+    server resumes the whole filter, not only its belief. NULL in older rows: the tracker
+    then starts its memory afresh, as before. A column is only added: nothing is lost."""
+    db.execute("ALTER TABLE navigation ADD COLUMN belief_memory TEXT")
+
+
 def current_version(db: Any) -> int:
     if "schema_migrations" not in db.table_names():
         return 0

@@ -137,6 +137,7 @@ class NavigationRow:
     steps: int
     belief: bytes | None = None
     belief_images: int | None = None
+    belief_memory: str | None = None
 
 
 @dataclass(frozen=True)
@@ -1100,7 +1101,7 @@ class Repo:
     def navigation(self, robot: str) -> NavigationRow | None:
         rows = self._q(
             "SELECT robot, tour_id, task_id, goal_location_id, state, reason, started_at, "
-            "ended_at, steps, belief, belief_images FROM navigation WHERE robot = ?",
+            "ended_at, steps, belief, belief_images, belief_memory FROM navigation WHERE robot = ?",
             (robot,),
         )
         if not rows:
@@ -1118,6 +1119,7 @@ class Repo:
             steps=r[8],
             belief=None if r[9] is None else bytes(r[9]),
             belief_images=r[10],
+            belief_memory=r[11],
         )
 
     def next_task_id(self) -> int:
@@ -1128,7 +1130,7 @@ class Repo:
         with self.transaction():
             self._x(
                 f"INSERT INTO navigation ({_NAVIGATION}) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (robot) DO UPDATE SET "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (robot) DO UPDATE SET "
                 + ", ".join(f"{c} = excluded.{c}" for c in _NAVIGATION.split(", ")[1:]),
                 (
                     row.robot,
@@ -1142,6 +1144,7 @@ class Repo:
                     row.steps,
                     row.belief,
                     row.belief_images,
+                    row.belief_memory,
                     time.time(),
                 ),
             )
@@ -1157,7 +1160,7 @@ class Repo:
 
 _NAVIGATION = (
     "robot, tour_id, task_id, goal_location_id, state, reason, started_at, ended_at, steps, "
-    "belief, belief_images, belief_at"
+    "belief, belief_images, belief_memory, belief_at"
 )
 """The columns of a navigation row, the key (``robot``) first."""
 

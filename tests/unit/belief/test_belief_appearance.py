@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from belief_testkit import route_graph
@@ -20,7 +22,7 @@ from server.belief.appearance import (
     update_log_posterior,
 )
 from server.belief.model import Action, BeliefModel, build_model
-from server.belief.tracker import Tracker, TrackerParams
+from server.belief.tracker import BeliefError, Tracker, TrackerMemory, TrackerParams
 
 positive = st.floats(0.01, 1.0, allow_nan=False)
 
@@ -192,3 +194,97 @@ def test_the_change_evidence_follows_a_running_mean_of_the_familiarity(model: Be
     assert last.light_change == 1.0
     tracker.reset()
     assert tracker.step(Action.navigate(None), lik, v=0, dt=0, familiarity=0.3).light_change == 0.0
+
+
+# ------------------------------------------------------------------ memory across a restart
+
+
+def _run(tracker: Tracker, n: int, start: int, rng: np.random.Generator) -> list:
+    """``n`` steps of the scenario above, frames unfamiliar from the fifth on."""
+    out = []
+    size = tracker.model.n_fine
+    for k in range(start, start + n):
+        lik = np.stack([_peak(size, int(rng.integers(0, size))), _peak(size, 2 + k)])
+        known = 0.2 if k < 4 else 0.9
+        out.append(tracker.step(Action.navigate(None), lik, v=0.3, dt=0.3, familiarity=known))
+    return out
+
+
+def test_a_belief_restored_with_the_trackers_memory_goes_on_as_the_tracker_would(
+    model: BeliefModel,
+) -> None:
+    """A restarted server restores the belief and the memory saved with it: the next steps
+    are the original tracker's, bit for bit. Restored without it, the appearance models start
+    level again and the steps differ."""
+    original = Tracker(model, TrackerParams())
+    _run(original, 30, 0, np.random.default_rng(2))  # the gate opens from the 20th
+    saved = TrackerMemory.from_dict(json.loads(json.dumps(original.memory().to_dict())))
+    assert saved == original.memory() and saved.appearance[0] != saved.appearance[1]
+    restored, forgetful = Tracker(model, TrackerParams()), Tracker(model, TrackerParams())
+    restored.set_belief(original.belief, saved)
+    forgetful.set_belief(original.belief)
+    ahead = [_run(t, 6, 30, np.random.default_rng(3)) for t in (original, restored, forgetful)]
+    for a, b in zip(ahead[0], ahead[1], strict=True):
+        np.testing.assert_array_equal(a.belief, b.belief)
+        assert (a.appearance, a.light_change, a.evidence) == (
+            b.appearance,
+            b.light_change,
+            b.evidence,
+        )
+    assert ahead[2][0].appearance != ahead[0][0].appearance
+    assert ahead[2][0].light_change < ahead[0][0].light_change  # the running mean restarted
+
+
+def test_a_fresh_tracker_assumes_the_tours_light_until_a_stretch_of_frames_says_otherwise(
+    model: BeliefModel,
+) -> None:
+    """The running mean starts at ``change_prior`` (0), not at the first frame's own
+    familiarity: a robot that starts facing a bare wall (every frame unfamiliar) uses the
+    tour's model alone for 16 frames and both from the 21st on (change_rate 0.05)."""
+    tracker = Tracker(model, TrackerParams())
+    lik = np.stack([_peak(model.n_fine, 3)] * 2)
+    g = [
+        tracker.step(Action.navigate(None), lik, v=0, dt=0, familiarity=0.9).light_change
+        for _ in range(25)
+    ]
+    assert g[:15] == [0.0] * 15 and 0.0 < g[17] < 1.0 and g[21:] == [1.0] * 4
+    started_at_first = Tracker(model, TrackerParams(appearance=AppearanceParams(change_prior=0.9)))
+    assert (
+        started_at_first.step(Action.navigate(None), lik, v=0, dt=0, familiarity=0.9).light_change
+        == 1.0
+    )
+    with pytest.raises(ValueError):
+        AppearanceParams(change_prior=1.5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-50, 0, allow_nan=False), max_size=4),
+    st.one_of(st.just(float("nan")), st.floats(0, 1)),
+    st.floats(-1, 2, allow_nan=False),
+    st.floats(-1, 2, allow_nan=False),
+)
+def test_tracker_memory_survives_strict_json(
+    appearance: list[float], familiar: float, fast: float, slow: float
+) -> None:
+    memory = TrackerMemory(tuple(appearance), familiar, fast, slow)
+    text = json.dumps(memory.to_dict(), allow_nan=False)  # strict JSON: NaN as null
+    back = TrackerMemory.from_dict(json.loads(text))
+    assert back.appearance == memory.appearance
+    assert (back.evidence_fast, back.evidence_slow) == (fast, slow)
+    assert back.familiar == familiar or (np.isnan(back.familiar) and np.isnan(familiar))
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        [1, 2],
+        {"appearance": "ab"},
+        {"appearance": [None]},
+        {"familiar": "0.5"},
+        {"evidence_fast": True},
+    ],
+)
+def test_unreadable_tracker_memory_is_a_belief_error(bad: object) -> None:
+    with pytest.raises(BeliefError):
+        TrackerMemory.from_dict(bad)  # type: ignore[arg-type]

@@ -7,6 +7,7 @@ can be started).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Iterator
 from pathlib import Path
@@ -609,3 +610,41 @@ def test_the_stored_kinds_of_learned_change_are_the_ones_the_api_names() -> None
 
     wire = get_args(schemas.LearnedChange.model_fields["kind"].annotation)
     assert set(wire) == set(LEARNED_KINDS) and len(wire) == len(LEARNED_KINDS)
+
+
+def test_a_schema_7_database_upgrades_and_navigation_rows_keep_the_trackers_memory(
+    store: Path | str,
+) -> None:
+    """Schema 7 -> 8 (``navigation.belief_memory``): a robot's navigation row is kept as it
+    was, its memory unknown (NULL: the tracker starts it afresh); a saved row returns its
+    memory as written, and a row saved without one clears it."""
+    db = _old(store, 7)
+    x = db.execute
+    x(
+        "INSERT INTO robots (name, household_id, token_hash, token_issued_at, created_at) "
+        "VALUES ('rover', 1, 'h', 1.0, 1.0)"
+    )
+    x("INSERT INTO tours (id, household_id, name, created_at) VALUES (7, 1, 'home', 3.0)")
+    x("INSERT INTO locations (id, tour_id, name, created_at) VALUES (2, 7, 'hall', 4.0)")
+    x(
+        "INSERT INTO navigation (robot, tour_id, task_id, goal_location_id, state, started_at, "
+        "belief, belief_images) VALUES ('rover', 7, 1, 2, 'underway', 1.0, ?, 3)",
+        (b"\x00\x01",),
+    )
+    before = _rows(db, ("navigation",))
+    db.close()
+    repo = Repo(store)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] >= 8
+        assert _rows(repo.db, before) == before
+        row = repo.navigation("rover")
+        assert row is not None and row.belief == b"\x00\x01" and row.belief_memory is None
+        memory = '{"appearance": [-1.5, 0.0], "familiar": 0.25}'
+        repo.save_navigation(dataclasses.replace(row, steps=5, belief_memory=memory))
+        again = repo.navigation("rover")
+        assert again is not None and (again.steps, again.belief_memory) == (5, memory)
+        repo.save_navigation(dataclasses.replace(again, belief=None, belief_memory=None))
+        cleared = repo.navigation("rover")
+        assert cleared is not None and cleared.belief is None and cleared.belief_memory is None
+    finally:
+        repo.close()
