@@ -95,6 +95,14 @@ class Recording:
         encoded = None if self.start is None else self.start.get("belief")
         return None if not encoded else base64.b64decode(encoded)
 
+    @property
+    def start_memory(self) -> dict[str, Any] | None:
+        """What the tracker remembered besides the belief when the task started
+        (:meth:`server.belief.tracker.TrackerMemory.to_dict`), or ``None`` (the prior, or a
+        recording made before it was recorded)."""
+        memory = None if self.start is None else self.start.get("memory")
+        return memory if isinstance(memory, dict) else None
+
     def realtime_fps(self) -> float:
         """Frames per second of robot time while it was recorded (0 with fewer than 2)."""
         if len(self.frames) < 2:

@@ -160,6 +160,7 @@ class Recorder(NavigationObserver, TeachingObserver):
         rec = self._start(robot, tour_id, task.id, tour, meta, wall)
         rec.scene = Scene(graph)
         belief = None if fresh else session.tracker.belief.astype("<f8").tobytes()
+        memory = None if fresh else session.tracker.memory().to_dict()
         public = schemas.TaskPublic(
             id=task.id,
             tour=tour_id,
@@ -173,7 +174,10 @@ class Recorder(NavigationObserver, TeachingObserver):
         first: list[Message] = [
             (topics.TOUR, tour),
             (topics.SCENE, rec.scene.tour(wall)),
-            (topics.START, {"resumed": resumed, "fresh": fresh, "belief": belief}),
+            (
+                topics.START,
+                {"resumed": resumed, "fresh": fresh, "belief": belief, "memory": memory},
+            ),
             (topics.TASK, public.model_dump()),
             log_message(
                 wall,

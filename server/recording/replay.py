@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from server import schemas
+from server.belief.tracker import BeliefError, TrackerMemory
 from server.recording.mcapfile import encode
 from server.recording.messages import navigation_frame, tour_fingerprint
 from server.recording.reader import Recording, RecordingError
@@ -364,7 +365,12 @@ def _start_belief(service: NavigationService, robot: str, recording: Recording) 
             f"{recording.path.name}'s starting belief has {belief.size} states, the tour "
             f"{session.runtime.model.n_fine}: it was recorded against another tour"
         )
-    session.tracker.set_belief(belief)
+    memory = recording.start_memory
+    try:
+        restored = None if memory is None else TrackerMemory.from_dict(memory)
+    except BeliefError as exc:
+        raise RecordingError(f"{recording.path.name}'s starting {exc}") from None
+    session.tracker.set_belief(belief, restored)
 
 
 def differences(

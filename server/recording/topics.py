@@ -262,6 +262,12 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
                 "contentEncoding": "base64",
                 "description": "(n_fine,) float64 little-endian, or null for the prior",
             },
+            memory={
+                "type": ["object", "null"],
+                "description": "what the tracker remembered besides the belief (the belief "
+                "over appearance models, the change gate's running familiarity, the evidence "
+                "averages: server.belief.tracker.TrackerMemory), or null for the prior",
+            },
         ),
     ),
 }

@@ -298,3 +298,38 @@ def test_a_tour_s_runtime_reads_its_taught_images_from_the_store(
         pixels = rt.taught_pixels(k)
         assert pixels is not None
         assert np.array_equal(pixels, decode_jpeg(stored, services.limits)[0])
+
+
+def test_a_restarted_service_resumes_the_whole_filter_not_only_the_belief(
+    taught: tuple[Api, dict[str, str], int], shared_data: Path
+) -> None:
+    """The persisted snapshot carries the tracker's memory (migration 8): a service started
+    afresh on the same store (a restarted server) resumes the robot's belief and also its
+    belief over the appearance models, the running familiarity of the change gate and the
+    evidence averages, as they were after the frame that saved them."""
+    import time
+
+    import numpy as np
+
+    from server.services.navigation import BELIEF_SNAPSHOT_S, NavigationService
+
+    api, robot, _ = taught
+    services = api.client.app.state.services  # type: ignore[attr-defined]
+    assert api.client.post("/robots/rover/goto", json={"location": "kitchen"}, headers=robot)
+    queries = sorted((shared_data / "corridor" / "query").glob("*.jpg"))
+    for k, path in enumerate(queries[:30]):
+        assert post_frame(api, robot, path, 100 + k / 10).status_code == 200
+    time.sleep(BELIEF_SNAPSHOT_S + 0.1)
+    assert post_frame(api, robot, queries[30], 103.0).status_code == 200  # saved with it
+    live = services.navigation.session("rover")
+    assert live is not None
+    saved = live.tracker.memory()
+    assert len(saved.appearance) == 2 and np.isfinite(saved.familiar)  # two models, default
+    restarted = NavigationService(services.repo, services.limits, services.navigation.params)
+    try:
+        resumed = restarted.session("rover")
+        assert resumed is not None and resumed is not live
+        assert resumed.tracker.memory() == saved
+        np.testing.assert_allclose(resumed.tracker.belief, live.tracker.belief, atol=1e-6)
+    finally:
+        restarted.close()

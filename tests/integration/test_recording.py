@@ -114,6 +114,8 @@ def test_a_task_reads_back_with_the_mcap_reader(recorded: Recorded) -> None:
         assert counts[topic] == n, (topic, counts)
     assert counts["/tour"] == counts["/start"] == 1 and counts["/task"] == 2
     assert counts["/scene"] == n + 1  # the tour, then the robot at every frame
+    start = next(p for t, p in messages if t == "/start")  # a fresh task: from the prior
+    assert start == {"resumed": False, "fresh": True, "belief": None, "memory": None}
     tasks = [p for t, p in messages if t == "/task"]
     assert tasks[0]["state"] == "underway" and tasks[-1]["state"] in ("cancelled", "arrived")
     assert [p["index"] for t, p in messages if t == "/frame"] == list(range(n))
