@@ -384,8 +384,9 @@ def build_tour(frames: Sequence[int], every: int, *, first_id: int = 0) -> Tour:
 #: belief away from where the route has been. Chosen among 0.5, 0.75 and 1.0 on the first halves
 #: of the shared data sets, tracker recall@1 at 0.5 / 0.75 / 1.0: corridor query -> ref at +-0
 #: 0.964 / 0.982 / 0.964; Nordland at +-10 summer -> winter 0.904 / 0.907 / 0.809, winter ->
-#: summer 0.833 / 0.823 / 0.709. Navigation keeps 1.0 and one model: with two models simulated
-#: trials arrived at the wrong place or got lost more often, at 0.75 and 0.5 too (docs/localize.md).
+#: summer 0.833 / 0.823 / 0.709. Navigation keeps 1.0 (with two models, since 2026-11-28): at
+#: 0.75 and 0.5 simulated trials arrived at the wrong place or got lost more often
+#: (docs/localize.md).
 BENCH_LIKELIHOOD_POWER = 0.75
 
 

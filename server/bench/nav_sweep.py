@@ -316,7 +316,8 @@ def _slug(name: str) -> str:
 
 
 def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]:
-    """A step hook that records the true pose, the command and the top beliefs."""
+    """A step hook that records the true pose, the command, the top beliefs, the belief over
+    appearance models and the change evidence."""
 
     def hook(step: int, result: Any) -> None:
         pose, c = robot.pose, result.command
@@ -333,6 +334,8 @@ def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]
                 "v": round(c.v, 3),
                 "w": round(c.w, 3),
                 "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
+                "appearance": [round(x, 3) for x in result.belief.appearance],
+                "light_change": round(result.belief.light_change, 3),
             }
         )
 

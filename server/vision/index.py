@@ -123,7 +123,7 @@ class EngineParams:
             the season changed (:data:`CHANGED_WEIGHTS`); :meth:`TourIndex.query_models`
             scores a frame with both, and the belief tracker weighs them by how well each
             explains the camera (:mod:`server.belief.appearance`). ``None`` (the default):
-            one model only. ``bench localize`` uses both; navigation only when set
+            one model only. ``bench localize`` and navigation use both
             (:func:`server.navigation.params.two_appearance_models`, docs/localize.md).
         feature_weight: weight of ``e_features`` (mean nearest-corner distance, ~[0, 1]).
         signature_weight: weight of the first-pass signature distance (~[0, 4]) in ``e``.
