@@ -11,6 +11,8 @@ Standard library only.
 
 from __future__ import annotations
 
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import fields, is_dataclass, replace
 from typing import Any, TypeVar
@@ -44,11 +46,24 @@ def tuned(params: T, overrides: Mapping[str, Any]) -> T:
             nested.setdefault(head, {})[rest] = value
         elif is_dataclass(current):
             raise ValueError(f"{cls}.{head} is a group of settings: name one, e.g. '{head}.x'")
+        elif value is None and _optional(type(params), head):
+            flat[head] = None  # a setting whose type admits None ("float | None")
         else:
             flat[head] = _coerce(current, value, f"{cls}.{head}")
     for head, sub in nested.items():
         flat[head] = tuned(getattr(params, head), sub)
     return replace(params, **flat)
+
+
+def _optional(cls: type, name: str) -> bool:
+    """Whether field ``name`` of dataclass ``cls`` is annotated as admitting ``None``."""
+    try:
+        hint = typing.get_type_hints(cls).get(name)
+    except (NameError, TypeError):  # an annotation that cannot be resolved: not known to
+        return False
+    return hint is not None and type(None) in typing.get_args(hint) and (
+        isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union
+    )
 
 
 def _coerce(current: Any, value: Any, name: str) -> Any:

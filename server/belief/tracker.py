@@ -174,6 +174,13 @@ class TrackerParams:
       frame's largest one (scale-free; one bad match can never zero out the true state). An
       all-zero frame is treated as no information (prediction only).
     * ``likelihood_power`` (1.0): ``L ** power`` sharpens (> 1) or tempers (< 1) the engine.
+    * ``changed_likelihood_power`` (0.75): with more than one appearance model, the power once
+      the change evidence is 1 (the light or the season changed: the models' likelihoods are
+      less sure of themselves, and one look-alike frame must not take the belief from where
+      the route has been); at change evidence ``g`` the power is ``likelihood_power + g *
+      (changed_likelihood_power - likelihood_power)``, so at ``g`` = 0 (the tour's own light)
+      it is ``likelihood_power`` exactly. ``None``: ``likelihood_power`` always. Chosen on the
+      first halves of the shared data (docs/localize.md).
     * ``motion_quantum`` (0.02): the travelled distance ``|v| dt`` and ``dt`` are rounded on a
       logarithmic grid of this relative step before computing the advance, so that the cached
       motion matrices are reused from frame to frame (a 1% error in the expected advance).
@@ -195,6 +202,7 @@ class TrackerParams:
     surprise_teleport: float = 0.1
     likelihood_floor: float = 1e-6
     likelihood_power: float = 1.0
+    changed_likelihood_power: float | None = 0.75
     motion_quantum: float = 0.02
     top_k: int = 5
     smoother_lag: int = 10
@@ -212,6 +220,9 @@ class TrackerParams:
             raise ValueError("surprise_teleport must be in [0, 1]")
         if not self.likelihood_floor > 0:
             raise ValueError("likelihood_floor must be > 0")
+        changed = self.changed_likelihood_power
+        if not (self.likelihood_power > 0 and (changed is None or changed > 0)):
+            raise ValueError("likelihood_power and changed_likelihood_power must be > 0")
         if self.top_k < 1 or self.smoother_lag < 0 or self.keep_run < 0:
             raise ValueError("top_k must be >= 1, smoother_lag and keep_run >= 0")
 
@@ -490,8 +501,19 @@ class Tracker:
         if not math.isfinite(float(lik.sum())) or float(lik.min()) < 0:
             raise InvalidLikelihoodError("likelihood must be finite and >= 0")
         lik = lik.reshape(-1, m.n_fine)
-        if p.likelihood_power != 1.0:
-            lik = lik**p.likelihood_power
+        change = 1.0  # with one model there is nothing to weigh
+        if stacked:
+            if math.isfinite(familiarity):
+                rate = p.appearance.change_rate
+                known = math.isfinite(self._familiar)
+                start = self._familiar if known else p.appearance.change_prior
+                self._familiar = start + rate * (familiarity - start)
+            change = change_evidence(self._familiar, p.appearance)
+        power = p.likelihood_power
+        if stacked and p.changed_likelihood_power is not None and change > 0:
+            power += change * (p.changed_likelihood_power - p.likelihood_power)
+        if power != 1.0:
+            lik = lik**power
         top = lik.max(axis=1, keepdims=True)
         # an all-zero frame carries no information: predict only
         lik = np.where(top > 0, np.maximum(lik, p.likelihood_floor * top), 1.0)
@@ -504,18 +526,12 @@ class Tracker:
             # trust by agreeing with the stale belief: only forget
             usual = self._fast < 0 or self._fast >= p.localised_evidence * self._slow
             scores = model_scores(moved, lik) if usual else np.ones(len(lik))
-            if math.isfinite(familiarity):
-                rate = p.appearance.change_rate
-                known = math.isfinite(self._familiar)
-                start = self._familiar if known else p.appearance.change_prior
-                self._familiar = start + rate * (familiarity - start)
-            change = change_evidence(self._familiar, p.appearance)
             scores = gated_scores(scores, change)
             self._appearance = update_log_posterior(self._appearance, scores, p.appearance)
             mix = gated_mixture(posterior(self._appearance), change)
             lik = mix @ lik
         else:
-            mix, change = np.ones(1), 1.0
+            mix = np.ones(1)
             lik = lik[0]
         ratio = float(moved @ lik) / (float(moved.sum()) * float(lik.max()))  # scale-free
         if self._fast < 0:

@@ -171,6 +171,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "navigates with 1.0; docs/localize.md)",
     )
     parser.add_argument(
+        "--changed-likelihood-power",
+        default="navigation",
+        help="TrackerParams.changed_likelihood_power: the power the similarities are raised to "
+        "once the change gate is open, interpolated from --likelihood-power as it opens: a "
+        "number, 'navigation' (the default: navigation's own, 0.75) or 'none' "
+        "(--likelihood-power at every frame; docs/localize.md)",
+    )
+    parser.add_argument(
         "--mcl",
         action="store_true",
         help="also run Monte-Carlo localisation along the replayed route, laid on a line "
@@ -1150,9 +1158,15 @@ def run(args: argparse.Namespace) -> int:
     if args.appearance == "models":
         params = dataclasses.replace(params, changed_weights=CHANGED_WEIGHTS)
     transitions = bench_transitions() if args.transitions == "bench" else TransitionParams()
+    try:
+        changed_power = _changed_power(args.changed_likelihood_power)
+    except ValueError as exc:
+        print(exc)
+        return 2
     tracker_params = TrackerParams(
         smoother_lag=args.lag,
         likelihood_power=args.likelihood_power,
+        changed_likelihood_power=changed_power,
         appearance=AppearanceParams(change_gate=not args.no_change_gate),
     )
     settings = RunSettings(
@@ -1201,6 +1215,7 @@ def run(args: argparse.Namespace) -> int:
         "smoother_lag": args.lag,
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
         "likelihood_power": tracker_params.likelihood_power,
+        "changed_likelihood_power": tracker_params.changed_likelihood_power,
         "query_every": args.query_every,
         "build_s": fwd.build_s,
     }
@@ -1337,6 +1352,26 @@ __all__ = [
     "select_half",
     "table1",
 ]
+
+
+def _changed_power(value: str) -> float | None:
+    """``--changed-likelihood-power``: navigation's own, none, or a positive number."""
+    from server.belief.tracker import TrackerParams
+
+    if value == "navigation":
+        return TrackerParams().changed_likelihood_power
+    if value == "none":
+        return None
+    try:
+        power = float(value)
+    except ValueError:
+        power = math.nan
+    if not (math.isfinite(power) and power > 0):
+        raise ValueError(
+            f"--changed-likelihood-power must be a positive number, 'navigation' or 'none', "
+            f"got {value!r}"
+        )
+    return power
 
 
 def _learn_params(changed_images: int) -> LearnParams:

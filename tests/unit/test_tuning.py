@@ -54,3 +54,19 @@ def test_the_dataclass_checks_still_run() -> None:
         tuned(NavigationParams(), {"dock_zooms": [0.5]})
     with pytest.raises(ValueError, match="avoid_full_m"):
         tuned(NavigationParams(), {"motion.avoid_full_m": 0.9})
+
+
+def test_a_setting_typed_as_optional_takes_null_and_a_number() -> None:
+    """``TrackerParams.changed_likelihood_power: float | None``: null turns it off, a number
+    sets it; a plain float setting still refuses null; changed() round-trips both."""
+    from server.tuning import changed
+
+    base = NavigationParams()
+    off = tuned(base, {"tracker.changed_likelihood_power": None})
+    assert off.tracker.changed_likelihood_power is None
+    assert (
+        tuned(base, {"tracker.changed_likelihood_power": 1}).tracker.changed_likelihood_power == 1.0
+    )
+    assert tuned(base, changed(off, base)) == off
+    with pytest.raises(ValueError, match="likelihood_power takes float, not None"):
+        tuned(base, {"tracker.likelihood_power": None})
