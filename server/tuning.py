@@ -61,8 +61,10 @@ def _optional(cls: type, name: str) -> bool:
         hint = typing.get_type_hints(cls).get(name)
     except (NameError, TypeError):  # an annotation that cannot be resolved: not known to
         return False
-    return hint is not None and type(None) in typing.get_args(hint) and (
-        isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union
+    return (
+        hint is not None
+        and type(None) in typing.get_args(hint)
+        and (isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union)
     )
 
 
