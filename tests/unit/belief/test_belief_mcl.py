@@ -43,7 +43,9 @@ def _naive_likelihood(particles, poses, scores, params, prior=None):
     prior = [1.0] * len(scores) if prior is None else prior
     out = []
     for x, y, th in particles:
-        total = params.floor * max(s**params.sharpness * b for s, b in zip(scores, prior))
+        total = params.floor * max(
+            s**params.sharpness * b for s, b in zip(scores, prior, strict=True)
+        )
         for (px, py, pth), s, b in zip(poses, scores, prior, strict=True):
             d2 = (x - px) ** 2 + (y - py) ** 2
             dth = math.remainder(th - pth, 2 * math.pi)
