@@ -19,11 +19,6 @@ system does not have:
 * **resample** (:func:`resample`, systematic) when the effective sample size falls below
   ``resample_ess`` of the particles; then ``inject`` of them are re-drawn at the poses of the
   best-scoring images (sensor resetting: a kidnapped robot or a wrong mode recovers).
-* **the topological belief as a prior** (``belief_weight``): an image's score is also weighed
-  by the belief's mass at its place or edge (relative to the most likely one, raised to
-  ``belief_weight``). Retrieval alone cannot tell two look-alike rooms apart, and the
-  particles gathered in whichever matched best; the belief, which has followed the route,
-  usually can. The belief is an input here, never an output: the filter still never changes it.
 * **estimate** (:func:`estimate`): the densest cell of a ``cell_m`` grid, and the weighted mean
   of the particles within ``mode_m`` of it (a mean over two look-alike rooms would stand in the
   wall between them); its uncertainty: the weighted spread of the whole cloud (``std_m``) and
@@ -51,7 +46,6 @@ __all__ = [
     "MonteCarloLocaliser",
     "effective_size",
     "estimate",
-    "image_weights",
     "initial",
     "likelihood",
     "predict",
@@ -78,10 +72,6 @@ class MclParams:
     * ``sigma_xy_m`` (0.4 m) / ``sigma_theta`` (0.5 rad): the kernel around an image's pose.
     * ``floor`` (1e-3): likelihood of a particle near no matching image, relative to one
       sitting on the best image.
-    * ``belief_weight`` (1.0): each image's ``score ** sharpness`` is multiplied by
-      ``(b(s) / max b) ** belief_weight``, ``b(s)`` the topological belief's mass at the image's
-      place or edge (when :meth:`MonteCarloLocaliser.step` gets it); 0: retrieval scores alone,
-      as before 2026-11-28.
     * ``resample_ess`` (0.5): resample when the effective sample size is below this fraction.
     * ``inject`` (0.03): after resampling this fraction of particles is re-drawn at the poses
       of the best-scoring images (spread ``inject_spread_m`` 0.3 m, ``noise_theta`` x 5).
@@ -103,7 +93,6 @@ class MclParams:
     sigma_xy_m: float = 0.4
     sigma_theta: float = 0.5
     floor: float = 1e-3
-    belief_weight: float = 1.0
     resample_ess: float = 0.5
     inject: float = 0.03
     inject_spread_m: float = 0.3
@@ -122,7 +111,6 @@ class MclParams:
             "noise_theta",
             "sharpness",
             "floor",
-            "belief_weight",
             "inject_spread_m",
         ):
             value = getattr(self, name)
@@ -213,19 +201,15 @@ def likelihood(
     poses: npt.ArrayLike,
     scores: npt.ArrayLike,
     params: MclParams,
-    prior: npt.ArrayLike | None = None,
 ) -> FloatArray:
     """``(P,)`` likelihood of each particle given the frame's ``(K,)`` ``scores`` of the images
     taught at ``(K, 3)`` ``poses`` (002 eq. 5 with a Gaussian kernel in place of the
     visibility region): ``floor * max_k s_k^q + sum_k s_k^q g(d_k) h(dtheta_k)``, ``q`` the
     sharpness, ``g`` Gaussian (``sigma_xy_m``), ``h`` von Mises (``sigma_theta``). The
-    ``(P, K)`` distances and heading cosines come from matrix products. ``prior``: ``(K,)``
-    non-negative factors that multiply each ``s_k^q`` (:func:`image_weights`)."""
+    ``(P, K)`` distances and heading cosines come from matrix products."""
     p = np.asarray(particles, dtype=np.float64)
     at = np.asarray(poses, dtype=np.float64)
     s = np.asarray(scores, dtype=np.float64) ** params.sharpness
-    if prior is not None:
-        s = s * np.asarray(prior, dtype=np.float64)
     if at.shape != (len(s), 3):
         raise ValueError(f"poses {at.shape} and scores {s.shape} do not match")
     if len(s) == 0:
@@ -238,18 +222,6 @@ def likelihood(
     exponent = -0.5 / params.sigma_xy_m**2 * np.maximum(d2, 0.0)
     exponent += (cos_d - 1.0) / params.sigma_theta**2
     out: FloatArray = np.exp(exponent) @ s + params.floor * float(s.max())
-    return out
-
-
-def image_weights(belief: npt.ArrayLike, params: MclParams) -> FloatArray:
-    """``(K,)`` factors of the images' scores from ``(K,)`` ``belief``, the topological
-    belief's mass at each image's place or edge: ``(b / max b) ** belief_weight`` (all 1 when
-    ``belief_weight`` is 0 or the belief has no mass)."""
-    b = np.maximum(np.asarray(belief, dtype=np.float64), 0.0)
-    top = float(b.max()) if len(b) else 0.0
-    if params.belief_weight == 0 or not top > 0:
-        return np.ones(len(b))
-    out: FloatArray = (b / top) ** params.belief_weight
     return out
 
 
@@ -327,32 +299,18 @@ class MonteCarloLocaliser:
         self.particles = initial(self.poses, p.particles, self.rng, spread_m=p.init_spread_m)
         self.weights = np.full(p.particles, 1.0 / p.particles)
 
-    def step(
-        self,
-        *,
-        v: float,
-        w: float,
-        dt: float,
-        scores: npt.ArrayLike,
-        belief: npt.ArrayLike | None = None,
-    ) -> MclEstimate:
-        """Predict with the odometry, weigh with the frame's image ``scores`` (and, with
-        ``belief``, ``(n_images,)`` the topological belief's mass at each image's place or edge,
-        :func:`image_weights`), resample when degenerate, estimate."""
+    def step(self, *, v: float, w: float, dt: float, scores: npt.ArrayLike) -> MclEstimate:
+        """Predict with the odometry, weigh with the frame's image ``scores``, resample when
+        degenerate, estimate."""
         p = self.params
         s = np.asarray(scores, dtype=np.float64)
         if s.shape != (len(self.poses),):
             raise ValueError(f"scores has shape {s.shape}, expected ({len(self.poses)},)")
-        prior = None if belief is None else image_weights(belief, p)
-        if prior is not None and prior.shape != s.shape:
-            raise ValueError(f"belief has shape {prior.shape}, expected ({len(self.poses)},)")
         noise = self.rng.standard_normal(size=(len(self.particles), 5))
         self.particles = predict(self.particles, v, w, dt, noise, p)
         k = min(p.top_k, len(s))
-        rank = s**p.sharpness if prior is None else s**p.sharpness * prior
-        top = np.argpartition(-rank, k - 1)[:k]
-        here = None if prior is None else prior[top]
-        lik = likelihood(self.particles, self.poses[top], s[top], p, here)
+        top = np.argpartition(-s, k - 1)[:k]
+        lik = likelihood(self.particles, self.poses[top], s[top], p)
         w_new = self.weights * lik
         self.weights = (
             w_new / w_new.sum() if w_new.sum() > 0 else np.full_like(w_new, 1 / len(w_new))
@@ -361,21 +319,17 @@ class MonteCarloLocaliser:
         x, y, theta, std, mode_mass = estimate(self.particles, self.weights, p)
         cloud = self.particles[:: max(1, len(self.particles) // self.CLOUD)].copy()
         if ess < p.resample_ess:
-            self._resample(self.poses[top], rank[top])
+            self._resample(self.poses[top], s[top])
         return MclEstimate(x, y, theta, std, mode_mass, ess, cloud)
 
-    def _resample(self, poses: FloatArray, weights: FloatArray) -> None:
-        """Systematic resampling, then ``inject`` of the particles re-drawn at ``poses`` in
-        proportion to ``weights`` (each image's ``score ** sharpness``, times its prior)."""
+    def _resample(self, poses: FloatArray, scores: FloatArray) -> None:
         p = self.params
         n = len(self.particles)
         self.particles = self.particles[resample(self.weights, float(self.rng.random()))]
         m = round(p.inject * n)
         if m > 0:
-            q = weights
-            total = float(q.sum())
-            chance = q / total if total > 0 else None  # no image scores: uniform
-            pick = self.rng.choice(len(poses), size=m, p=chance)
+            q = scores**p.sharpness
+            pick = self.rng.choice(len(poses), size=m, p=q / q.sum())
             fresh = poses[pick] + self.rng.normal(0.0, 1.0, size=(m, 3)) * [
                 p.inject_spread_m,
                 p.inject_spread_m,

@@ -619,6 +619,9 @@ def replay(
             lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
             best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
             known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
+            if mcl is not None:
+                pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
+                out.mcl_xy.append((pose.x, pose.y))
         else:
             t1 = t0
             obs = observations[i]
@@ -626,22 +629,11 @@ def replay(
         out.observations.append(Observation(lik, best, known))
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, familiarity=known)
-        m0 = time.perf_counter()
-        if mcl is not None and observations is None:  # as navigation: after the belief
-            pose = mcl.step(
-                v=SPEED,
-                w=0.0,
-                dt=FRAME_DT,
-                scores=sims[0].image,
-                belief=summary.state[graph.image_state],
-            )
-            out.mcl_xy.append((pose.x, pose.y))
-        mcl_s = time.perf_counter() - m0  # not the belief's step: kept out of step_ms
         decision = decide(graph, summary.belief, goal, costs)
-        t3 = time.perf_counter() - mcl_s
+        t3 = time.perf_counter()
         action = next_action(decision.action, action_mode)
         traj = tracker.smoothed()
-        t4 = time.perf_counter() - mcl_s
+        t4 = time.perf_counter()
         if traj is not None:
             # window entry j is step (i + 1) - (len - 1) + j; step s saw query frame s - 1
             first = i + 1 - (len(traj.fine) - 1)

@@ -173,13 +173,7 @@ class Navigator:
         else:
             step = self._navigate(task, crew, frame, dt, wall)
         if self.mcl is not None:
-            estimate = self.mcl.step(
-                v=frame.v,
-                w=frame.w,
-                dt=dt,
-                scores=step.similarity.image,
-                belief=step.summary.state[self.runtime.graph.image_state],
-            )
+            estimate = self.mcl.step(v=frame.v, w=frame.w, dt=dt, scores=step.similarity.image)
             step = replace(step, mcl=estimate)
         self.last_action = step.command.action
         self.last_timestamp = frame.timestamp

@@ -15,7 +15,6 @@ from server.belief.mcl import (
     MonteCarloLocaliser,
     effective_size,
     estimate,
-    image_weights,
     likelihood,
     predict,
     resample,
@@ -39,22 +38,15 @@ def _naive_predict(particles, v, w, dt, noise, params):
     return np.array(out)
 
 
-def _naive_likelihood(particles, poses, scores, params, prior=None):
-    prior = [1.0] * len(scores) if prior is None else prior
+def _naive_likelihood(particles, poses, scores, params):
     out = []
     for x, y, th in particles:
-        total = params.floor * max(
-            s**params.sharpness * b for s, b in zip(scores, prior, strict=True)
-        )
-        for (px, py, pth), s, b in zip(poses, scores, prior, strict=True):
+        total = params.floor * max(s**params.sharpness for s in scores)
+        for (px, py, pth), s in zip(poses, scores, strict=True):
             d2 = (x - px) ** 2 + (y - py) ** 2
             dth = math.remainder(th - pth, 2 * math.pi)
-            total += (
-                b
-                * s**params.sharpness
-                * math.exp(
-                    -0.5 * d2 / params.sigma_xy_m**2 + (math.cos(dth) - 1) / params.sigma_theta**2
-                )
+            total += s**params.sharpness * math.exp(
+                -0.5 * d2 / params.sigma_xy_m**2 + (math.cos(dth) - 1) / params.sigma_theta**2
             )
         out.append(total)
     return np.array(out)
@@ -92,13 +84,6 @@ def test_vectorised_steps_match_a_naive_loop_over_particles(
     lik = likelihood(moved, poses, scores, P)
     np.testing.assert_allclose(lik, _naive_likelihood(moved, poses, scores, P), rtol=1e-9)
     assert np.all(lik > 0)
-    belief = rng.uniform(0.0, 1.0, k)
-    prior = image_weights(belief, P)
-    naive_prior = [(b / belief.max()) ** P.belief_weight for b in belief]
-    np.testing.assert_allclose(prior, naive_prior, rtol=1e-12)
-    with_prior = likelihood(moved, poses, scores, P, prior)
-    naive = _naive_likelihood(moved, poses, scores, P, naive_prior)
-    np.testing.assert_allclose(with_prior, naive, rtol=1e-9)
 
 
 @settings(max_examples=40, deadline=None)
@@ -171,28 +156,3 @@ def test_poses_must_all_be_known() -> None:
         MonteCarloLocaliser(np.array([[0.0, 0.0, np.nan]]))
     with pytest.raises(ValueError):
         MclParams(sigma_xy_m=0.0)
-
-
-def test_the_topological_belief_picks_the_look_alike_stretch_retrieval_cannot() -> None:
-    """The corridor above, the robot 1-4 m along it: retrieval scores 1 m and 11 m alike all
-    the way. With the belief (which has followed the route: its mass on the first stretch)
-    as a prior the cloud is one mode within 0.3 m of the truth after 2 s; with
-    ``belief_weight`` 0 it is not (two modes 10 m apart, or the wrong one)."""
-    x_taught = np.arange(0.0, 20.0, 0.1)
-    poses = np.column_stack([x_taught, np.zeros_like(x_taught), np.zeros_like(x_taught)])
-    belief = np.where(x_taught < 10, 0.9, 0.1)  # the first stretch's states hold the mass
-    ends = {}
-    for weight in (1.0, 0.0):
-        mcl = MonteCarloLocaliser(poses, MclParams(enabled=True, seed=5, belief_weight=weight))
-        x, dt, v = 1.0, 0.1, 0.5
-        errors, stds = [], []
-        for _ in range(60):  # 6 s: to 4 m, inside the look-alike stretch all the time
-            x += v * dt
-            scores = _corridor_scores(x_taught, x)
-            est = mcl.step(v=v, w=0.0, dt=dt, scores=scores, belief=belief)
-            errors.append(abs(est.x - x))
-            stds.append(est.std_m)
-        ends[weight] = (max(errors[20:]), max(stds[20:]))
-    assert ends[1.0][0] < 0.3 and ends[1.0][1] < 0.5
-    assert ends[0.0][0] > 1.0 or ends[0.0][1] > 2.0
-    assert np.array_equal(image_weights(np.zeros(3), P), np.ones(3))  # no mass: no prior
