@@ -13,6 +13,11 @@ import os
 # busy-wait on the cores the request threads need (bench load, 10 robots: p99 3.4 s -> 21 ms).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# One OpenCV thread, for the same reason: its operations on a 320x240 frame are too small to
+# share, and splitting them cost CPU and time (Harris corners and descriptors of a frame: 3.0
+# ms of CPU with OpenCV's two threads, 2.7 ms with one, and not sooner; a docking step's four
+# zoomed extractions 11.8 ms against 8.6 ms; docs/scale.md)
+os.environ.setdefault("OPENCV_FOR_THREADS_NUM", "1")
 
 import argparse
 import importlib
