@@ -172,6 +172,11 @@ class NavigationParams:
       (apartment + studio, same, 10 trials each, seed 100): off 16/20 arrived, ``"out"`` 14/20,
       ``"both"`` 13/20 (1 wrong place each). Single views 0.8 m behind the spot
       (``bench dock-views``): ``"both"`` reads "short" less often than the frame's zooms.
+    * ``dock_wide_corners`` (False): with taught zooms, the frame's corners read against a
+      taught level come from one more extraction of the frame with a budget of ``n_features``
+      times the largest zoom squared (:func:`server.vision.homing.wide_corners`), so the
+      frame's view zoomed in keeps up to ``n_features`` corners, as the frame zoomed in does,
+      instead of the ``n_features / z ** 2`` of its own that lie there.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -250,6 +255,7 @@ class NavigationParams:
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
     dock_taught_zooms: Literal["off", "out", "both"] = "off"
+    dock_wide_corners: bool = False
     dock_second_axis: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0

@@ -341,6 +341,22 @@ def taught_zoom_levels(
     return tuple(levels)
 
 
+def wide_corners(
+    image: npt.NDArray[np.uint8], zooms: Sequence[float], params: FeatureParams
+) -> ImageFeatures:
+    """The frame's corners and descriptors with a budget of ``n_features * max(zooms) ** 2``
+    (:func:`extract_corners`), for :func:`homing_scale_taught_zoomed`'s taught levels.
+
+    The frame zoomed in by ``z`` shows its central ``1 / z`` and finds up to ``n_features``
+    corners there; of the frame's own ``n_features`` only about ``n_features / z ** 2`` lie
+    there. With the larger budget the zoomed view keeps up to ``n_features`` of them, as
+    the zoomed frame would. The detector keeps corners strongest first, each one farther than
+    ``min_distance`` from those before it, so the first ``n_features`` are the frame's own
+    corners (:func:`~server.vision.features.extract` gives the same)."""
+    budget = int(np.ceil(params.n_features * max(zooms, default=1.0) ** 2))
+    return extract_corners(image, replace(params, n_features=max(budget, params.n_features)))
+
+
 def _as_frame_zoom(
     current: ImageFeatures, target: ImageFeatures, factor: float, params: FeatureParams
 ) -> tuple[ImageFeatures, ImageFeatures]:
@@ -372,13 +388,16 @@ def homing_scale_taught_zoomed(
     levels: Sequence[ZoomLevel],
     *,
     frame_levels: Sequence[ZoomLevel] = (),
+    wide: ImageFeatures | None = None,
     params: HomingParams = HomingParams(),
     fit: ScaleParams = ScaleParams(),
 ) -> ScaleResult | None:
     """:func:`homing_scale_zoomed` with some or all of the zooms on the taught side: ``levels``
     from :func:`taught_zoom_levels` (the first, factor 1, is the taught image's own features),
     ``current`` the frame's own features, and ``frame_levels`` (:func:`zoom_levels`) the frame
-    zooms to use instead of the taught level of the same factor.
+    zooms to use instead of the taught level of the same factor. ``wide``: the frame's corners
+    with a larger budget (:func:`wide_corners`), read against the taught levels instead of
+    ``current``'s, so that a zoomed-in view keeps up to ``n_features`` corners.
 
     Docking uses it only with ``NavigationParams.dock_taught_zooms`` (off by default: it
     changes closed-loop outcomes). ``teachrepeat bench dock-views`` (apartment and studio,
@@ -412,7 +431,8 @@ def homing_scale_taught_zoomed(
         elif factor in own:
             cur, tgt = own[factor], target
         else:
-            cur, tgt = _as_frame_zoom(current, taught[factor], factor, params.features)
+            frame = current if wide is None else wide
+            cur, tgt = _as_frame_zoom(frame, taught[factor], factor, params.features)
         r = homing_scale(cur, tgt, params=params, fit=fit)
         if r is not None and (best is None or r.inliers > best.inliers):
             best, best_factor = r, factor
