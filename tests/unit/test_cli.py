@@ -48,6 +48,20 @@ def test_serve_caps_malloc_arenas_unless_the_environment_says(
     assert limit_malloc_arenas() == (platform.libc_ver()[0] == "glibc")
 
 
+def test_serve_keeps_freed_memory_unless_the_environment_says(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import platform
+
+    from server.serve import keep_freed_memory
+
+    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"):
+        monkeypatch.setenv(name, "1000000")
+        assert not keep_freed_memory()
+        monkeypatch.delenv(name)
+    assert keep_freed_memory() == (platform.libc_ver()[0] == "glibc")
+
+
 @pytest.mark.parametrize(
     ("value", "message"),
     [
