@@ -161,30 +161,26 @@ class NavigationParams:
       race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
       44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
       m off now arrive (0.06-0.48 m, replayed alone).
-    * ``dock_taught_zooms`` ("both"): which of those zooms are made on the taught images
+    * ``dock_taught_zooms`` ("off"): which of those zooms are made on the taught images
       instead of the frame, once per taught image (:meth:`TourRuntime.taught_levels`,
       :func:`server.vision.homing.homing_scale_taught_zoomed`): ``"out"`` the zooms out (the
       taught image zoomed in by ``z`` stands for the frame zoomed out by ``1 / z``; two
-      extractions on a docking step instead of four), ``"both"`` all of them (none), ``"off"``
-      none (the frame's four zooms, the default until 2026-11-28). ``bench load`` server CPU
-      per frame, alternated runs on 2026-11-28 (docs/reliability.md): ``"both"`` 6.84 / 7.35
-      ms against 8.34 / 8.28 with ``"off"`` (docking's share 0.5 ms against 1.9-2.0). Closed
-      loop, the same 144 trials paired (apartment + studio 20 and the office floor 8 per
-      condition, same / lighting / moved, seed 100): ``"both"`` 100 arrived, 7 wrong places;
-      ``"off"`` 97 and 7 (12 trials fixed, 9 broken, 51 identical). It docks a little less
-      closely: 10 of the 144 ended 0.5 m or more from the goal's spot against 6, and the
-      robots that reached the right place stopped within 0.48 m in 90 % of the trials against
-      0.31 m. Single views 0.8 m behind the spot (``bench dock-views``): ``"both"`` reads
-      "short" less often than the frame's zooms (39 % right against 55 %). On 20 trials of
-      2026-11-26 it had looked worse (13 against 16): chance, on these 144.
+      extractions on a docking step instead of four), ``"both"`` all of them (none). Off by
+      default: it docks less closely. Measured 2026-11-28 (docs/reliability.md): ``bench
+      load`` server CPU per frame 6.5-7.1 ms with ``"both"`` against 7.9-8.3 (docking's share
+      0.5 ms against 1.9-2.0); closed loop, the same 144 trials paired (apartment + studio 20
+      and the office floor 8 per condition, same / lighting / moved, seed 100): ``"both"``
+      100 arrived, ``"off"`` 97, 7 wrong places each, but with ``"both"`` 10 trials ended 0.5
+      m or more from the goal's spot against 6, the robots that reached the right place
+      stopped within 0.48 m in 90 % of the trials against 0.31 m, and in the two-room test
+      home (tests/integration/test_bench_navigate_sweep.py) the sofa trial ends 0.95 m off
+      against 0.21 m. Single views 0.8 m behind the spot (``bench dock-views``): ``"both"``
+      reads "short" less often than the frame's zooms (39 % right against 55 %).
     * ``dock_wide_corners`` (False): with taught zooms, the frame's corners read against a
       taught level come from one more extraction of the frame with a budget of ``n_features``
       times the largest zoom squared (:func:`server.vision.homing.wide_corners`), so the
       frame's view zoomed in keeps up to ``n_features`` corners, as the frame zoomed in does,
-      instead of the ``n_features / z ** 2`` of its own that lie there. Single views 0.8 m
-      behind the spot: 50 % right against 39 % without it; closed loop (apartment + studio,
-      the 120 trials above): 88 arrived against 90 without it, at 0.5-0.7 ms more CPU per
-      frame. Off.
+      instead of the ``n_features / z ** 2`` of its own that lie there.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -262,7 +258,7 @@ class NavigationParams:
     place_dock_turns: float = 1.25
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
-    dock_taught_zooms: Literal["off", "out", "both"] = "both"
+    dock_taught_zooms: Literal["off", "out", "both"] = "off"
     dock_wide_corners: bool = False
     dock_second_axis: bool = True
     fresh_belief: bool = True

@@ -399,15 +399,15 @@ def homing_scale_taught_zoomed(
     with a larger budget (:func:`wide_corners`), read against the taught levels instead of
     ``current``'s, so that a zoomed-in view keeps up to ``n_features`` corners.
 
-    Docking uses it with ``NavigationParams.dock_taught_zooms`` (``"both"`` by default since
-    2026-11-28: the same success on 144 paired closed-loop trials for about 1.5 ms less CPU
-    per frame, docking a little less close; the parameter's documentation has the figures).
+    Docking uses it only with ``NavigationParams.dock_taught_zooms`` (off by default: the
+    same success on 144 paired closed-loop trials for about 1.5 ms less CPU per frame, but
+    docking ends less close; the parameter's documentation has the figures).
     ``teachrepeat bench dock-views`` (apartment and studio, every place, 8 headings, the robot
     0.8 and 0.4 m behind and 0.4 m past the taught spot, 370 views): the taught image zoomed
-    out, for the frame zoomed in, found fewer inliers
-    (11.4 against 15.8 at 0.8 m behind) and read "short" less often (39 % of the views
-    against 55 %); the taught image zoomed in, for the frame zoomed out, found more (27.9
-    against 21.4 at 0.4 m past) and read "past" more often (76 % against 64 %).
+    out, for the frame zoomed in, found fewer inliers (11.4 against 15.8 at 0.8 m behind) and
+    read "short" less often (39 % of the views against 55 %); the taught image zoomed in, for
+    the frame zoomed out, found more (27.9 against 21.4 at 0.4 m past) and read "past" more
+    often (76 % against 64 %).
 
     The result means what :func:`homing_scale_zoomed`'s does: scale, rotation, inliers and
     offset of the level with the most inliers (the first on a tie, levels in the order of

@@ -107,8 +107,8 @@ def test_with_both_every_zoom_is_the_taught_image_s() -> None:
     assert views.zoomed_scale(3) == homing_scale_taught_zoomed(feats, levels)
 
 
-def test_off_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
-    rt = runtime(dock_taught_zooms="off")
+def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
+    rt = runtime()
     assert rt.params.dock_taught_zooms == "off"
     assert rt.taught_levels(6) is None
     reads: list[int] = []
