@@ -14,9 +14,9 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 # One OpenCV thread, for the same reason: its operations on a 320x240 frame are too small to
-# share, and splitting them cost CPU and time (Harris corners and descriptors of a frame: 3.0
-# ms of CPU with OpenCV's two threads, 2.7 ms with one, and not sooner; a docking step's four
-# zoomed extractions 11.8 ms against 8.6 ms; docs/scale.md)
+# share, and splitting them cost CPU without saving time (a frame's features: 3.0 ms of CPU
+# with OpenCV's two threads, 2.7 ms with one; a docking step's four zoomed extractions 11.8
+# ms against 8.6 ms; docs/reliability.md, "2026-11-28")
 os.environ.setdefault("OPENCV_FOR_THREADS_NUM", "1")
 
 import argparse

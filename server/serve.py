@@ -164,8 +164,8 @@ def keep_freed_memory(mmap_threshold: int = 32 << 20, trim_threshold: int = 256 
     descriptor distances). By default each larger than 128 kB was a fresh ``mmap`` and each
     freed one went back to the system, so every frame faulted its pages in again; on this
     project's 2-core VM a page fault is dear: the Harris response of a 320x240 frame took
-    1.18 ms of CPU that way and 0.27 ms with the memory kept (docs/scale.md, "CPU per
-    frame"). Returns whether the settings were applied."""
+    1.18 ms of CPU that way and 0.27 ms with the memory kept (docs/reliability.md,
+    "2026-11-28"). Returns whether the settings were applied."""
     if "MALLOC_MMAP_THRESHOLD_" in os.environ or "MALLOC_TRIM_THRESHOLD_" in os.environ:
         return False
     try:

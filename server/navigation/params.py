@@ -180,7 +180,10 @@ class NavigationParams:
       taught level come from one more extraction of the frame with a budget of ``n_features``
       times the largest zoom squared (:func:`server.vision.homing.wide_corners`), so the
       frame's view zoomed in keeps up to ``n_features`` corners, as the frame zoomed in does,
-      instead of the ``n_features / z ** 2`` of its own that lie there.
+      instead of the ``n_features / z ** 2`` of its own that lie there. Measured 2026-11-28
+      with ``"both"``: single views 0.8 m behind the spot 50 % right against 39 % without it;
+      closed loop (apartment + studio, the 120 trials above) 88 arrived against 90 without it,
+      at 0.5-0.7 ms more CPU per frame. Off.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -168,19 +169,8 @@ def test_wide_corners_begin_with_the_frame_s_own(seed: int) -> None:
     assert np.array_equal(wide.keypoints[:k], feats.keypoints)
     assert np.array_equal(wide.descriptors[:k], feats.descriptors)
     assert k < wide.n_keypoints <= int(np.ceil(fp.n_features * max(ZOOMS) ** 2))
-    assert wide_corners(img, (), fp) == replace_signature(feats)
-
-
-def replace_signature(feats: ImageFeatures) -> ImageFeatures:
-    """``feats`` with the empty signature of :func:`extract_corners`."""
-    return ImageFeatures(
-        keypoints=feats.keypoints,
-        descriptors=feats.descriptors,
-        signature=np.zeros(0, np.float32),
-        descriptor=feats.descriptor,
-        size=feats.size,
-        flags=feats.flags,
-    )
+    # no zoom: the frame's own corners, with extract_corners' empty signature
+    assert wide_corners(img, (), fp) == replace(feats, signature=np.zeros(0, np.float32))
 
 
 def test_wide_corners_give_a_zoomed_in_taught_level_more_of_the_frame() -> None:
