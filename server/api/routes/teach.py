@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Request
 from starlette.concurrency import run_in_threadpool
 
 from server import schemas
-from server.api.deps import IMAGE_BODY_OPENAPI, ImageBodyDep, RobotDep, ServicesDep
+from server.api.deps import RobotDep, RobotPath, ServicesDep, read_upload, upload_openapi
 
 router = APIRouter(prefix="/robots/{robot}", tags=["teaching"])
-FrameQuery = Annotated[schemas.FrameMeta, Query()]
+UPLOAD_OPENAPI = upload_openapi(schemas.FrameMeta)
 
 
 @router.post("/teach/start", response_model=schemas.TeachingState)
@@ -31,12 +29,11 @@ def mark_location(
     return services.teaching.mark(robot, body)
 
 
-@router.post("/teach/spin", response_model=schemas.ImageStored, openapi_extra=IMAGE_BODY_OPENAPI)
-async def spin_image(
-    robot: RobotDep, services: ServicesDep, meta: FrameQuery, body: ImageBodyDep
-) -> schemas.ImageStored:
+@router.post("/teach/spin", response_model=schemas.ImageStored, openapi_extra=UPLOAD_OPENAPI)
+async def spin_image(request: Request, robot: RobotPath) -> schemas.ImageStored:
     """One image taken while spinning at the current place (JPEG body)."""
-    return await run_in_threadpool(services.teaching.spin_image, robot, body, meta)
+    up = await read_upload(request, robot, schemas.FrameMeta)
+    return await run_in_threadpool(up.services.teaching.spin_image, up.robot, up.body, up.meta)
 
 
 @router.post("/teach/finish", response_model=schemas.TeachingEnded)
@@ -51,11 +48,10 @@ def abort(robot: RobotDep, services: ServicesDep) -> schemas.TeachingEnded:
     return services.teaching.abort(robot)
 
 
-@router.post("/frames", response_model=schemas.AnyFrameResult, openapi_extra=IMAGE_BODY_OPENAPI)
-async def frame(
-    robot: RobotDep, services: ServicesDep, meta: FrameQuery, body: ImageBodyDep
-) -> schemas.AnyFrameResult:
+@router.post("/frames", response_model=schemas.AnyFrameResult, openapi_extra=UPLOAD_OPENAPI)
+async def frame(request: Request, robot: RobotPath) -> schemas.AnyFrameResult:
     """A camera frame (JPEG body) with its timestamp, odometry and optional depth profile.
     While teaching it is appended to the open path; while navigating it is answered with the
     next motion command."""
-    return await run_in_threadpool(services.frame, robot, body, meta)
+    up = await read_upload(request, robot, schemas.FrameMeta)
+    return await run_in_threadpool(up.services.frame, up.robot, up.body, up.meta)
