@@ -8,6 +8,7 @@ the caller replays the motion command recorded with the target image.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -215,6 +216,171 @@ def homing_scale(
     )
 
 
+@dataclass(frozen=True, eq=False)
+class _Consensus:
+    """One pair's matches and its winning hypothesis, before the least-squares refit:
+    ``p``, ``q`` the ``(n,)`` matched points (current, target) as complex pixels, ``dx`` their
+    horizontal displacements ``(n,)`` float32 px, ``inl`` the winner's inliers ``(n,)`` bool,
+    ``a`` its transform, ``width`` the current image's width (px)."""
+
+    p: npt.NDArray[np.complex128]
+    q: npt.NDArray[np.complex128]
+    dx: npt.NDArray[np.float32]
+    inl: npt.NDArray[np.bool_]
+    a: complex
+    width: int
+
+    @property
+    def inliers(self) -> int:
+        return int(self.inl.sum())
+
+    def result(self) -> ScaleResult:
+        """The refit on the inliers, as :func:`homing_scale` makes it."""
+        p, q, inl = self.p, self.q, self.inl
+        if inl.sum() >= 2:  # least-squares similarity on the inliers
+            pc, qc = p[inl] - p[inl].mean(), q[inl] - q[inl].mean()
+            a_best = complex(np.vdot(pc, qc) / max(float(np.vdot(pc, pc).real), 1e-9))
+        else:
+            a_best = self.a
+        dx = float(np.mean(self.dx[inl])) if inl.any() else 0.0
+        return ScaleResult(
+            scale=float(abs(a_best)),
+            rotation=float(np.angle(a_best)),
+            inliers=int(inl.sum()),
+            n_matches=len(p),
+            offset=float(np.clip(dx / self.width, -1.0, 1.0)),
+        )
+
+
+def _consensus(
+    pairs: Sequence[tuple[ImageFeatures, ImageFeatures]], params: HomingParams, fit: ScaleParams
+) -> list[_Consensus | None]:
+    """:func:`homing_scale`'s matching and consensus for every ``(current, target)`` pair in
+    one pass over arrays padded to the largest pair (``(pairs, rows, columns)``), with the
+    same numbers as pair by pair: the distances are each pair's own
+    :func:`~server.vision.features.descriptor_distances`, the padding is ``inf`` (never
+    nearest, never second nearest of a real row) and masked out, and every later step is
+    element-wise or a comparison. ``None`` where :func:`homing_scale` gives ``None``."""
+    out: list[_Consensus | None] = [None] * len(pairs)
+    live: list[int] = []
+    dists: list[npt.NDArray[np.float32]] = []
+    for k, (current, target) in enumerate(pairs):
+        if current.descriptor != target.descriptor:
+            raise ValueError(
+                f"cannot match {current.descriptor} against {target.descriptor} features; "
+                "extract both with the same FeatureParams"
+            )
+        if current.n_keypoints and target.n_keypoints:
+            live.append(k)
+            dists.append(
+                descriptor_distances(
+                    current.descriptors, target.descriptors, current.descriptor, params.features
+                )
+            )
+    if not live:
+        return out
+    n_rows = max(d.shape[0] for d in dists)
+    n_cols = max(d.shape[1] for d in dists)
+    dist = np.full((len(live), n_rows, n_cols), np.inf, np.float32)
+    src = np.zeros((len(live), n_rows, 2), np.float32)
+    dst_all = np.zeros((len(live), n_cols, 2), np.float32)
+    for row, (k, d) in enumerate(zip(live, dists, strict=True)):
+        current, target = pairs[k]
+        dist[row, : d.shape[0], : d.shape[1]] = d
+        src[row, : d.shape[0]] = current.keypoints
+        dst_all[row, : d.shape[1]] = target.keypoints
+    real = np.arange(n_rows)[None, :] < np.array([pairs[k][0].n_keypoints for k in live])[:, None]
+    # mutual nearest neighbours, distance limit, ratio test (as match_features)
+    fwd = dist.argmin(axis=2)
+    back = np.ascontiguousarray(dist.transpose(0, 2, 1)).argmin(axis=2)
+    nearest = np.take_along_axis(dist, fwd[..., None], axis=2)
+    keep = real & (np.take_along_axis(back, fwd, axis=1) == np.arange(n_rows)[None, :])
+    keep &= nearest[..., 0] <= params.max_distance
+    if n_cols >= 2:  # a pair with one column: inf second nearest, the test passes (as skipped)
+        np.put_along_axis(dist, fwd[..., None], np.inf, axis=2)  # the second nearest is left
+        second = dist.min(axis=2)
+        keep &= nearest[..., 0] < params.ratio * np.maximum(second, 1e-9)
+    dst = np.take_along_axis(dst_all, fwd[..., None], axis=1)
+    limit = np.array([params.max_dy * pairs[k][0].size[1] for k in live], np.float32)
+    keep &= np.abs(dst[..., 1] - src[..., 1]) <= limit[:, None]
+    n = keep.sum(axis=1)
+    if int(n.max()) < max(params.min_matches, 2):
+        return out
+    # the accepted matches first, in row order (strongest corners of the current frame first)
+    order = np.argsort(~keep, axis=1, kind="stable")[:, : int(n.max())]
+    src = np.take_along_axis(src, order[..., None], axis=1)
+    dst = np.take_along_axis(dst, order[..., None], axis=1)
+    matched = np.arange(order.shape[1])[None, :] < n[:, None]
+    p = src[..., 0].astype(np.float64) + 1j * src[..., 1]
+    q = dst[..., 0].astype(np.float64) + 1j * dst[..., 1]
+    # every pair of the first hypotheses_from matches (as homing_scale)
+    h = np.minimum(n, fit.hypotheses_from)
+    i, j = _pairs(min(int(h.max()), fit.hypotheses_from))
+    dp = p[:, j] - p[:, i]
+    ok = (j[None, :] < h[:, None]) & (np.abs(dp) >= fit.min_separation_px)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (q[:, j] - q[:, i]) / np.where(ok, dp, 1.0)
+    scale, roll = np.abs(a), np.abs(np.angle(a))
+    ok &= (roll <= fit.max_rotation) & (scale >= fit.scale_range[0]) & (scale <= fit.scale_range[1])
+    b = q[:, i] - a * p[:, i]
+    # (pairs, hypotheses, matches) residuals, pixels
+    agree = np.abs(a[..., None] * p[:, None, :] + b[..., None] - q[:, None, :]) <= fit.inlier_px
+    agree &= matched[:, None, :]
+    votes = np.where(ok, agree.sum(axis=2), -1)
+    best = votes.argmax(axis=1)
+    for row, k in enumerate(live):
+        m = int(n[row])
+        if m < max(params.min_matches, 2) or not ok[row].any():
+            continue
+        out[k] = _Consensus(
+            p=p[row, :m],
+            q=q[row, :m],
+            dx=dst[row, :m, 0] - src[row, :m, 0],
+            inl=agree[row, best[row], :m],
+            a=complex(a[row, best[row]]),
+            width=int(pairs[k][0].size[0]),
+        )
+    return out
+
+
+@functools.cache
+def _pairs(n: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """``np.triu_indices(n, k=1)``: every pair ``i < j`` of ``n`` matches, row by row."""
+    i, j = np.triu_indices(n, k=1)
+    i.flags.writeable = j.flags.writeable = False
+    return i, j
+
+
+def homing_scales(
+    pairs: Sequence[tuple[ImageFeatures, ImageFeatures]],
+    *,
+    params: HomingParams = HomingParams(),
+    fit: ScaleParams = ScaleParams(),
+) -> list[ScaleResult | None]:
+    """``[homing_scale(current, target) for current, target in pairs]``, the same results
+    made in one vectorised pass (:func:`_consensus`): docking fits a frame's five zoom levels
+    against a taught image at once."""
+    return [None if c is None else c.result() for c in _consensus(pairs, params, fit)]
+
+
+def _best_zoom(
+    pairs: Sequence[tuple[ImageFeatures, ImageFeatures]],
+    factors: Sequence[float],
+    params: HomingParams,
+    fit: ScaleParams,
+) -> ScaleResult | None:
+    """Of the pairs (one per zoom ``factors``), the fit with the most inliers (the first on a
+    tie), its scale multiplied by its factor; only that one is refitted. ``None``: none fits."""
+    best: tuple[_Consensus, float] | None = None
+    for c, factor in zip(_consensus(pairs, params, fit), factors, strict=True):
+        if c is not None and (best is None or c.inliers > best[0].inliers):
+            best = (c, factor)
+    if best is None:
+        return None
+    result = best[0].result()
+    return result if best[1] == 1.0 else replace(result, scale=result.scale * best[1])
+
+
 def zoom_image(image: npt.NDArray[np.uint8], factor: float) -> npt.NDArray[np.uint8]:
     """``image`` as a camera would see it from nearer (``factor`` > 1: the centre
     ``1 / factor`` of the frame enlarged to the full size) or from further back (``factor`` < 1:
@@ -292,15 +458,8 @@ def homing_scale_zoomed(
 
     Returns ``None`` when no level fits.
     """
-    best: ScaleResult | None = None
-    best_factor = 1.0
-    for level in levels:
-        r = homing_scale(level.features, target, params=params, fit=fit)
-        if r is not None and (best is None or r.inliers > best.inliers):
-            best, best_factor = r, level.factor
-    if best is None or best_factor == 1.0:
-        return best
-    return replace(best, scale=best.scale * best_factor)
+    pairs = [(level.features, target) for level in levels]
+    return _best_zoom(pairs, [level.factor for level in levels], params, fit)
 
 
 def taught_zoom_levels(
@@ -425,19 +584,13 @@ def homing_scale_taught_zoomed(
     taught = {lv.factor: lv.features for lv in levels}
     # the order of zoom_levels: 1, then by distance from 1 on a log scale, in before out
     order = sorted(set(own) | set(taught), key=lambda f: (round(abs(float(np.log(f))), 9), f < 1.0))
-    best: ScaleResult | None = None
-    best_factor = 1.0
+    pairs = []
     for factor in order:
         if factor == 1.0:
-            cur, tgt = current, target
+            pairs.append((current, target))
         elif factor in own:
-            cur, tgt = own[factor], target
+            pairs.append((own[factor], target))
         else:
             frame = current if wide is None else wide
-            cur, tgt = _as_frame_zoom(frame, taught[factor], factor, params.features)
-        r = homing_scale(cur, tgt, params=params, fit=fit)
-        if r is not None and (best is None or r.inliers > best.inliers):
-            best, best_factor = r, factor
-    if best is None or best_factor == 1.0:
-        return best
-    return replace(best, scale=best.scale * best_factor)
+            pairs.append(_as_frame_zoom(frame, taught[factor], factor, params.features))
+    return _best_zoom(pairs, order, params, fit)
