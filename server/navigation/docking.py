@@ -19,6 +19,7 @@ The arbiter asks :meth:`place` among the motion behaviours and :meth:`confirm` l
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +28,7 @@ from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
 from server.navigation.command import Command, Proposal
 from server.navigation.observation import Observation, ViewRequest, Views
+from server.navigation.params import NavigationParams
 from server.navigation.runtime import TourRuntime
 from server.vision.homing import ScaleResult
 
@@ -38,15 +40,28 @@ def top_spins(rt: TourRuntime, obs: Observation, location: int, most: int = 3) -
     return [int(i) for i in ranked]
 
 
-def best_fit(views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
-    """Of ``candidates``, the one the frame fits best (most inliers, zoomed scale fits) and
-    that fit; the first and ``None`` when none fits."""
+def best_fit(
+    fits: Callable[[int], ScaleResult | None], candidates: list[int]
+) -> tuple[int, ScaleResult | None]:
+    """Of ``candidates``, the one the frame fits best by ``fits`` (most inliers; docking reads
+    :meth:`Views.zoomed_scale`) and that fit; the first and ``None`` when none fits."""
     best: tuple[int, ScaleResult | None] = (candidates[0] if candidates else 0, None)
     for i in candidates:
-        fit = views.zoomed_scale(i)
+        fit = fits(i)
         if fit is not None and (best[1] is None or fit.inliers > best[1].inliers):
             best = (i, fit)
     return best
+
+
+def look_fit(
+    views: Views, candidates: list[int], p: NavigationParams
+) -> tuple[int, ScaleResult | None]:
+    """The view looked for among ``candidates`` (place docking and settling turn until one is
+    in sight and lined up) and its fit: :func:`best_fit` of the zoomed fits, read on the
+    taught images' zooms with ``dock_taught_zooms`` ``"look"`` (no extraction of the frame's
+    zooms while turning). Creeping and the verdicts read the frame's zooms."""
+    fits = views.taught_zoomed_scale if p.dock_taught_zooms == "look" else views.zoomed_scale
+    return best_fit(fits, candidates)
 
 
 def scale_verdict(log_scales: list[float], fit: ScaleResult, tol: float) -> tuple[bool, bool]:
@@ -162,7 +177,7 @@ class Docking:
         return not rad < np.pi / 2
 
     def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
-        return best_fit(views, candidates)
+        return best_fit(views.zoomed_scale, candidates)
 
     def _verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
         return scale_verdict(log_scales, fit, self.p.dock_scale_tol)
@@ -232,7 +247,7 @@ class Docking:
     def _look(self, obs: Observation) -> Proposal | None:
         """Turn until a spin image is in view and lined up; ``None`` once it is (creep on)."""
         pl, p, mp = self.placing, self.p, self.p.motion
-        target, fit = self._best(obs.views, self._spins(obs))
+        target, fit = look_fit(obs.views, self._spins(obs), p)
         seen = fit is not None and fit.inliers >= p.dock_min_inliers
         if fit is None or not seen or abs(fit.offset) > mp.toward_offset:
             if pl.rad >= 2 * np.pi * p.place_dock_turns:

@@ -84,6 +84,7 @@ class Views:
     offsets: Mapping[int, HomingResult | None] = field(default_factory=dict)
     scales: Mapping[int, ScaleResult | None] = field(default_factory=dict)
     zoomed: Mapping[int, ScaleResult | None] = field(default_factory=dict)
+    taught_zoomed: Mapping[int, ScaleResult | None] = field(default_factory=dict)
 
     def offset(self, image: int) -> HomingResult | None:
         """Homing of the frame on taught image ``image``."""
@@ -99,6 +100,13 @@ class Views:
         """Scale fit through the frame's zoom levels on taught image ``image``."""
         _check(self.zoomed, image, "zoomed")
         return self.zoomed[image]
+
+    def taught_zoomed_scale(self, image: int) -> ScaleResult | None:
+        """Scale fit of the frame on taught image ``image``'s own zoom levels (requested as
+        ``zoomed``): no extraction of the frame's zooms, unless the runtime cannot read the
+        taught image's pixels (then the frame's, as :meth:`zoomed_scale`)."""
+        _check(self.taught_zoomed, image, "zoomed")
+        return self.taught_zoomed[image]
 
 
 def _check(table: Mapping[int, object], image: int, kind: str) -> None:
@@ -277,7 +285,9 @@ def match_views(
     fit). With ``dock_taught_zooms`` (``"out"`` or ``"both"``) those zooms are read off the
     taught image instead (:meth:`TourRuntime.taught_levels`, made once per taught image), the
     rest off the frame (``"out"``: the frame zoomed in, two extractions once per frame); the
-    frame's four zooms still serve a taught image whose pixels the runtime cannot read."""
+    frame's four zooms still serve a taught image whose pixels the runtime cannot read. With
+    ``"look"`` the zoomed fits are the frame's, and ``taught_zoomed`` holds the fits on the
+    taught images' zooms, for looking for a view."""
     taught = runtime.features
     p = runtime.params
     made: dict[str, tuple[ZoomLevel, ...]] = {}
@@ -297,14 +307,21 @@ def match_views(
         return wide[0]
 
     def zoomed(i: int) -> ScaleResult | None:
-        levels = runtime.taught_levels(i) if p.dock_taught_zooms != "off" else None
+        levels = runtime.taught_levels(i) if p.dock_taught_zooms in ("out", "both") else None
         if levels is None:
             return homing_scale_zoomed(frame_levels("both"), taught[i])
         own = frame_levels("in") if p.dock_taught_zooms == "out" else ()
         return homing_scale_taught_zoomed(features, levels, frame_levels=own, wide=frame_wide())
 
+    def taught_zoomed(i: int) -> ScaleResult | None:
+        levels = runtime.taught_levels(i)
+        if levels is None:
+            return homing_scale_zoomed(frame_levels("both"), taught[i])
+        return homing_scale_taught_zoomed(features, levels)
+
     return Views(
         offsets=LazyFits(request.offsets, lambda i: homing_offset(features, taught[i])),
         scales=LazyFits(request.scales, lambda i: homing_scale(features, taught[i])),
         zoomed=LazyFits(request.zoomed, zoomed),
+        taught_zoomed=LazyFits(request.zoomed, taught_zoomed),
     )

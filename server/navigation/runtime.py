@@ -108,8 +108,8 @@ class TourRuntime:
         """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits
         (:func:`~server.vision.homing.taught_zoom_levels` of ``params.dock_zooms``, those
         ``params.dock_taught_zooms`` names: ``"out"`` the taught image zoomed in, standing for
-        the frame zoomed out; ``"both"`` zoomed in and out). Made from its pixels the first
-        time it is asked for (two or four corner extractions), then kept for the
+        the frame zoomed out; ``"both"`` and ``"look"`` zoomed in and out). Made from its
+        pixels the first time it is asked for (two or four corner extractions), then kept for the
         :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` with ``dock_taught_zooms``
         off or when the runtime cannot read the taught pixels (no :attr:`taught_pixels`, or it
         gave ``None``)."""

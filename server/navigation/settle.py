@@ -20,7 +20,7 @@ from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
 from server.navigation.behaviours import DepartureRuns
 from server.navigation.command import Command, Proposal
-from server.navigation.docking import best_fit, scale_verdict, top_spins
+from server.navigation.docking import look_fit, scale_verdict, top_spins
 from server.navigation.observation import Observation, ViewRequest
 from server.navigation.runtime import TourRuntime
 
@@ -111,7 +111,7 @@ class Settle:
         if self.off > OFF_PLACE_FRAMES:
             return None
         if self.phase == "look":
-            target, fit = best_fit(obs.views, top_spins(self.rt, obs, place))
+            target, fit = look_fit(obs.views, top_spins(self.rt, obs, place), p)
             seen = fit is not None and fit.inliers >= p.dock_min_inliers
             if fit is None or not seen or abs(fit.offset) > mp.toward_offset:
                 if self.rad >= 2 * np.pi * p.place_dock_turns:

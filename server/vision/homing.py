@@ -558,9 +558,9 @@ def homing_scale_taught_zoomed(
     with a larger budget (:func:`wide_corners`), read against the taught levels instead of
     ``current``'s, so that a zoomed-in view keeps up to ``n_features`` corners.
 
-    Docking uses it only with ``NavigationParams.dock_taught_zooms`` (off by default: the
-    same success on 144 paired closed-loop trials for about 1.5 ms less CPU per frame, but
-    docking ends less close; the parameter's documentation has the figures).
+    Docking uses it with ``NavigationParams.dock_taught_zooms``: by default (``"look"``) only
+    to look for a view; for its verdicts too (``"both"``) it saves as much CPU but docks less
+    closely (the parameter's documentation has the figures).
     ``teachrepeat bench dock-views`` (apartment and studio, every place, 8 headings, the robot
     0.8 and 0.4 m behind and 0.4 m past the taught spot, 370 views): the taught image zoomed
     out, for the frame zoomed in, found fewer inliers (11.4 against 15.8 at 0.8 m behind) and

@@ -44,7 +44,7 @@ def settle_obs(
         map_state=at,
         t=t,
         previous=previous,
-        views=Views(zoomed=zoomed),
+        views=Views(zoomed=zoomed, taught_zoomed=zoomed),
         **kw,
     )
 

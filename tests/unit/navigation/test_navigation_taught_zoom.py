@@ -1,6 +1,6 @@
 """Docking's zoom levels of the taught images (``dock_taught_zooms``): made once per taught
 image from its pixels, kept within a bound, and the frame's own zooms when the pixels cannot
-be read or the option is off (the default)."""
+be read or the option is off; by default ("look") read only to look for a view."""
 
 from __future__ import annotations
 
@@ -107,9 +107,9 @@ def test_with_both_every_zoom_is_the_taught_image_s() -> None:
     assert views.zoomed_scale(3) == homing_scale_taught_zoomed(feats, levels)
 
 
-def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
-    rt = runtime()
-    assert rt.params.dock_taught_zooms == "off"
+def test_off_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
+    assert runtime().params.dock_taught_zooms == "look"  # the default
+    rt = runtime(dock_taught_zooms="off")
     assert rt.taught_levels(6) is None
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
@@ -124,7 +124,7 @@ def test_off_by_default_docking_zooms_the_frame_only_and_reads_no_pixels() -> No
 
 
 def test_an_unknown_choice_is_refused_with_the_choices() -> None:
-    with pytest.raises(ValueError, match="'off', 'out' or 'both'"):
+    with pytest.raises(ValueError, match="'off', 'out', 'both' or 'look'"):
         runtime(dock_taught_zooms="yes")
 
 
@@ -152,3 +152,58 @@ def test_views_are_matched_when_read_once_each_and_as_made_at_once() -> None:
     with pytest.raises(ViewNotRequested):
         views.zoomed_scale(9)
     assert reads == [7]
+
+
+def test_look_reads_the_taught_zooms_and_extracts_no_frame_zoom(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With "look", the zoomed fits are the frame's (as "off": creeping and verdicts) and the
+    taught-zoomed fits are those on the taught images' own levels, made without one
+    extraction of the frame's zooms; where the pixels cannot be read, the frame's."""
+    from server.navigation import observation
+
+    rt = runtime(dock_taught_zooms="look")
+    made: list[str] = []
+
+    def counting_zoom_levels(*args, **kwargs):  # type: ignore[no-untyped-def]
+        made.append(args[-1] if len(args) > 4 else kwargs.get("which", "both"))
+        return zoom_levels(*args, **kwargs)
+
+    monkeypatch.setattr(observation, "zoom_levels", counting_zoom_levels)
+    frame = zoomed(scene(IMAGES[4]), 1.3)
+    feats = extract(frame)
+    missing = {6}
+    rt.taught_pixels = lambda k: None if k in missing else scene(IMAGES[k])
+    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({4, 5, 6})))
+    p = rt.params
+    for k in (4, 5):
+        levels = taught_zoom_levels(scene(IMAGES[k]), FEATURES[k], p.dock_zooms, p.features)
+        assert views.taught_zoomed_scale(k) == homing_scale_taught_zoomed(feats, levels)
+    assert made == []  # looking extracted nothing from the frame
+    fit = views.taught_zoomed_scale(4)
+    assert fit is not None and fit.scale == pytest.approx(1 / 1.3, rel=0.05)
+    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    assert views.taught_zoomed_scale(6) == homing_scale_zoomed(frame_levels, FEATURES[6])
+    assert views.zoomed_scale(4) == homing_scale_zoomed(frame_levels, FEATURES[4])
+    assert made == ["both"]  # the frame's zooms once, for both
+    with pytest.raises(ViewNotRequested):
+        views.taught_zoomed_scale(9)
+
+
+def test_look_fit_reads_the_taught_zooms_only_with_look() -> None:
+    """Naive reference: the best of the candidates by inliers, from the mapping the option
+    names (the other mapping holds better fits, which must not be read)."""
+    from server.navigation.docking import look_fit
+    from server.navigation.observation import Views
+    from server.vision.homing import ScaleResult
+
+    def fit(inliers: int) -> ScaleResult:
+        return ScaleResult(scale=1.0, rotation=0.0, inliers=inliers, n_matches=40, offset=0.0)
+
+    views = Views(
+        zoomed={1: fit(12), 2: fit(30), 3: None},
+        taught_zoomed={1: fit(25), 2: fit(11), 3: fit(40)},
+    )
+    assert look_fit(views, [1, 2, 3], runtime(dock_taught_zooms="off").params) == (2, fit(30))
+    assert look_fit(views, [1, 2, 3], runtime(dock_taught_zooms="look").params) == (3, fit(40))
+    assert look_fit(views, [3], runtime(dock_taught_zooms="off").params) == (3, None)
