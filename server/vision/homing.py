@@ -359,7 +359,9 @@ def homing_scales(
 ) -> list[ScaleResult | None]:
     """``[homing_scale(current, target) for current, target in pairs]``, the same results
     made in one vectorised pass (:func:`_consensus`): docking fits a frame's five zoom levels
-    against a taught image at once."""
+    against a taught image at once. :func:`homing_scale` keeps its own code for one pair:
+    through the padded arrays one pair takes 0.28 ms against 0.22 (corridor frames), and
+    it is the naive reference the tests hold this pass to."""
     return [None if c is None else c.result() for c in _consensus(pairs, params, fit)]
 
 
