@@ -313,15 +313,17 @@ def match_views(
         own = frame_levels("in") if p.dock_taught_zooms == "out" else ()
         return homing_scale_taught_zoomed(features, levels, frame_levels=own, wide=frame_wide())
 
+    zoomed_fits = LazyFits(request.zoomed, zoomed)
+
     def taught_zoomed(i: int) -> ScaleResult | None:
         levels = runtime.taught_levels(i)
         if levels is None:
-            return homing_scale_zoomed(frame_levels("both"), taught[i])
-        return homing_scale_taught_zoomed(features, levels)
+            return zoomed_fits[i]  # the frame's zooms: the same fit, made once
+        return homing_scale_taught_zoomed(features, levels, wide=frame_wide())
 
     return Views(
         offsets=LazyFits(request.offsets, lambda i: homing_offset(features, taught[i])),
         scales=LazyFits(request.scales, lambda i: homing_scale(features, taught[i])),
-        zoomed=LazyFits(request.zoomed, zoomed),
+        zoomed=zoomed_fits,
         taught_zoomed=LazyFits(request.zoomed, taught_zoomed),
     )
