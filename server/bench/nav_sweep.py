@@ -317,7 +317,8 @@ def _slug(name: str) -> str:
 
 def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]:
     """A step hook that records the true pose, the command, the top beliefs, the belief over
-    appearance models and the change evidence."""
+    appearance models, the change evidence and Monte-Carlo localisation's estimate (x, y,
+    theta, std_m, mode_mass; null when it does not run)."""
 
     def hook(step: int, result: Any) -> None:
         pose, c = robot.pose, result.command
@@ -336,6 +337,18 @@ def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]
                 "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
                 "appearance": [round(x, 3) for x in result.belief.appearance],
                 "light_change": round(result.belief.light_change, 3),
+                "mcl": None
+                if result.pose is None
+                else [
+                    round(v, 3)
+                    for v in (
+                        result.pose.x,
+                        result.pose.y,
+                        result.pose.theta,
+                        result.pose.std_m,
+                        result.pose.mode_mass,
+                    )
+                ],
             }
         )
 
