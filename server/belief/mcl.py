@@ -16,13 +16,12 @@ system does not have:
   difference (seen from elsewhere, or facing another way, the image would not have matched;
   the heading kernel is von Mises, ``~ exp(-dtheta^2 / 2 sigma_theta^2)`` for small angles,
   so that both kernels come from matrix products).
-* **temper** (:func:`frame_weight`, :func:`temper`): the likelihood, scaled so that its best
-  particle has 1, is raised to a power below 1 (``temper``), and lower still for a frame that
-  matches the tour badly (its ``familiarity``, :func:`server.belief.appearance.familiarity`,
-  from ``familiar_low`` to 0 at ``familiar_high``). Consecutive frames are not independent
-  views (a robot turning on the spot sees the same look-alike door for a second), and a frame
-  off the taught paths has a best match all the same: without it, a few such frames left the
-  right particles with 1e-3 of the weight each and resampling dropped them.
+* **temper** (:func:`temper`): the likelihood, scaled so that its best particle has 1, is
+  raised to a power below 1 (``temper``). Consecutive frames are not independent views (a
+  robot turning on the spot sees the same look-alike door for a second; one off the taught
+  paths still has a best match): taken at face value, a few such frames left the right
+  particles with 1e-3 of the weight each, resampling dropped them and the cloud settled in
+  the look-alike.
 * **resample** (:func:`resample`, systematic) when the effective sample size falls below
   ``resample_ess`` of the particles; then ``inject`` of them are re-drawn at the poses of the
   best-scoring images (sensor resetting: a kidnapped robot or a wrong mode recovers).
@@ -53,7 +52,6 @@ __all__ = [
     "MonteCarloLocaliser",
     "effective_size",
     "estimate",
-    "frame_weight",
     "initial",
     "likelihood",
     "predict",
@@ -81,13 +79,10 @@ class MclParams:
     * ``sigma_xy_m`` (0.4 m) / ``sigma_theta`` (0.5 rad): the kernel around an image's pose.
     * ``floor`` (0.2): likelihood of a particle near no matching image, relative to one
       sitting on the best image (1e-3 before 2026-11-29).
-    * ``temper`` (0.1): the power each frame's likelihood is raised to (1: the likelihood as
-      it is, the behaviour before 2026-11-29 with the old ``floor``).
-    * ``familiar_low`` (0.1) / ``familiar_high`` (0.6): a frame's familiarity (the quantile
-      of its best error among the tour's error levels; 0 = matches the tour better than the
-      tour matches itself at wrong places) at which the power starts to fall from ``temper``
-      and reaches 0 (the frame then weighs nothing). ``floor``, ``temper`` and these two
-      were chosen on the apartment and the office floor (seed 100, docs/ambiguity.md 5.2).
+    * ``temper`` (0.1): the power each frame's likelihood is raised to (1 with ``floor``
+      1e-3: the likelihood as it is, the behaviour before 2026-11-29). ``floor`` and
+      ``temper`` were chosen on the apartment and the office floor (seed 100) and the
+      corridor's route (docs/ambiguity.md 5.2).
     * ``resample_ess`` (0.5): resample when the effective sample size is below this fraction.
     * ``inject`` (0.03): after resampling this fraction of particles is re-drawn at the poses
       of the best-scoring images (spread ``inject_spread_m`` 0.3 m, ``noise_theta`` x 5).
@@ -110,8 +105,6 @@ class MclParams:
     sigma_theta: float = 0.5
     floor: float = 0.2
     temper: float = 0.1
-    familiar_low: float = 0.1
-    familiar_high: float = 0.6
     resample_ess: float = 0.5
     inject: float = 0.03
     inject_spread_m: float = 0.3
@@ -140,8 +133,6 @@ class MclParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"MclParams.{name} must be finite and > 0")
-        if not (0 <= self.familiar_low < self.familiar_high <= 1):
-            raise ValueError("familiar_low and familiar_high must satisfy 0 <= low < high <= 1")
         if not (0 <= self.resample_ess <= 1 and 0 <= self.inject < 1):
             raise ValueError("resample_ess must lie in [0, 1] and inject in [0, 1)")
 
@@ -247,18 +238,6 @@ def likelihood(
     return out
 
 
-def frame_weight(familiarity: float, params: MclParams) -> float:
-    """The power a frame's likelihood is raised to: ``temper`` up to a familiarity of
-    ``familiar_low``, falling linearly to 0 at ``familiar_high`` (a frame that matches the
-    tour no better than its images match wrong places tells little about where the robot
-    is); ``temper`` when the familiarity is unknown (NaN)."""
-    if not math.isfinite(familiarity):
-        return params.temper
-    span = params.familiar_high - params.familiar_low
-    share = min(max((params.familiar_high - familiarity) / span, 0.0), 1.0)
-    return params.temper * share
-
-
 def temper(lik: npt.ArrayLike, power: float) -> FloatArray:
     """``(P,)`` likelihoods scaled so that the largest is 1, raised to ``power`` (0: all 1,
     the frame weighs nothing; all-zero likelihoods give all 1 too)."""
@@ -344,18 +323,9 @@ class MonteCarloLocaliser:
         self.particles = initial(self.poses, p.particles, self.rng, spread_m=p.init_spread_m)
         self.weights = np.full(p.particles, 1.0 / p.particles)
 
-    def step(
-        self,
-        *,
-        v: float,
-        w: float,
-        dt: float,
-        scores: npt.ArrayLike,
-        familiarity: float = math.nan,
-    ) -> MclEstimate:
-        """Predict with the odometry, weigh with the frame's image ``scores`` (tempered by its
-        ``familiarity`` in [0, 1], NaN: unknown, :func:`frame_weight`), resample when
-        degenerate, estimate."""
+    def step(self, *, v: float, w: float, dt: float, scores: npt.ArrayLike) -> MclEstimate:
+        """Predict with the odometry, weigh with the frame's image ``scores`` (tempered,
+        :func:`temper`), resample when degenerate, estimate."""
         p = self.params
         s = np.asarray(scores, dtype=np.float64)
         if s.shape != (len(self.poses),):
@@ -365,7 +335,7 @@ class MonteCarloLocaliser:
         k = min(p.top_k, len(s))
         top = np.argpartition(-s, k - 1)[:k]
         lik = likelihood(self.particles, self.poses[top], s[top], p)
-        w_new = self.weights * temper(lik, frame_weight(familiarity, p))
+        w_new = self.weights * temper(lik, p.temper)
         self.weights = (
             w_new / w_new.sum() if w_new.sum() > 0 else np.full_like(w_new, 1 / len(w_new))
         )

@@ -620,9 +620,7 @@ def replay(
             best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
             known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
             if mcl is not None:
-                pose = mcl.step(
-                    v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image, familiarity=known
-                )
+                pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
                 out.mcl_xy.append((pose.x, pose.y))
         else:
             t1 = t0

@@ -10,7 +10,6 @@ behaviour state reaches the next).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -85,9 +84,7 @@ def gave_up(events: frozenset[str]) -> str | None:
 @dataclass(frozen=True)
 class Step:
     """What one frame saw and decided. ``decision`` and ``outcome`` are ``None`` without a
-    task underway; ``familiarity`` is how well the frame matches the tour at all
-    (:attr:`Observation.familiarity`); ``mcl`` is the metric pose estimate when Monte-Carlo
-    localisation runs."""
+    task underway; ``mcl`` is the metric pose estimate when Monte-Carlo localisation runs."""
 
     features: ImageFeatures
     similarity: Similarity
@@ -95,7 +92,6 @@ class Step:
     decision: Decision | None
     command: Command
     outcome: Outcome | None
-    familiarity: float = math.nan
     mcl: MclEstimate | None = None
 
 
@@ -177,13 +173,7 @@ class Navigator:
         else:
             step = self._navigate(task, crew, frame, dt, wall)
         if self.mcl is not None:
-            estimate = self.mcl.step(
-                v=frame.v,
-                w=frame.w,
-                dt=dt,
-                scores=step.similarity.image,
-                familiarity=step.familiarity,
-            )
+            estimate = self.mcl.step(v=frame.v, w=frame.w, dt=dt, scores=step.similarity.image)
             step = replace(step, mcl=estimate)
         self.last_action = step.command.action
         self.last_timestamp = frame.timestamp
@@ -197,8 +187,7 @@ class Navigator:
         summary = self.tracker.step(
             self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known
         )
-        similarity = preferred(similarities, summary)
-        return Step(features, similarity, summary, None, STAND, None, familiarity=known)
+        return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 
     def _navigate(self, task: Task, crew: Crew, frame: Frame, dt: float, wall: float) -> Step:
         if task.started_robot_time is None:
@@ -240,12 +229,4 @@ class Navigator:
             command, winner = STAND, "stand"
             reason = f"task {task.state}" + (f": {task.reason}" if task.reason else "")
         self.previous = Outcome(command, winner, reason, proposals, events)
-        return Step(
-            obs.features,
-            obs.similarity,
-            obs.summary,
-            obs.decision,
-            command,
-            self.previous,
-            familiarity=obs.familiarity,
-        )
+        return Step(obs.features, obs.similarity, obs.summary, obs.decision, command, self.previous)

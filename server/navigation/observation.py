@@ -8,7 +8,6 @@ Behaviours then decide from the :class:`Observation` alone; none of them calls i
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Generic, TypeVar
@@ -152,9 +151,6 @@ class Observation:
             (:meth:`TourRuntime.place_ambiguity`), when ``at_goal`` (else ``None``).
         views: the matches the behaviours asked for.
         previous: the last frame's :class:`Outcome` (``None`` on a task's first frame).
-        familiarity: how well the frame matches the tour at all, in [0, 1] (0 = better
-            than the tour's images match wrong places; :meth:`TourRuntime.familiarity`; NaN
-            with one appearance model).
     """
 
     t: float
@@ -172,7 +168,6 @@ class Observation:
     goal_ambiguity: float | None
     views: Views
     previous: Outcome | None
-    familiarity: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -245,7 +240,6 @@ def perceive(
         goal_ambiguity=runtime.place_ambiguity(goal) if at_goal else None,
         views=Views(),
         previous=previous,
-        familiarity=known,
     )
     return replace(seen, views=match_views(runtime, frame.image, features, wants(seen)))
 

@@ -1,6 +1,6 @@
 """Monte-Carlo localisation weighted by retrieval scores (seed 002): vectorised against a naive
 per-particle loop, converging on a synthetic corridor with a look-alike stretch; the tempered
-likelihood against a naive loop, and a frame that matches nothing weighing nothing."""
+likelihood against a naive loop and, at temper 1, the likelihood as it is."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from server.belief.mcl import (
     MonteCarloLocaliser,
     effective_size,
     estimate,
-    frame_weight,
     likelihood,
     predict,
     resample,
@@ -161,19 +160,6 @@ def test_poses_must_all_be_known() -> None:
         MclParams(sigma_xy_m=0.0)
 
 
-def test_the_frame_weight_falls_from_temper_to_zero_with_the_familiarity() -> None:
-    p = MclParams(temper=0.2, familiar_low=0.1, familiar_high=0.6)
-    assert frame_weight(0.0, p) == pytest.approx(0.2)
-    assert frame_weight(0.1, p) == pytest.approx(0.2)
-    assert frame_weight(0.35, p) == pytest.approx(0.1)
-    assert frame_weight(0.6, p) == 0.0 and frame_weight(1.0, p) == 0.0
-    assert frame_weight(math.nan, p) == pytest.approx(0.2)  # unknown: the frame counts
-    q = np.linspace(0, 1, 41)
-    assert np.all(np.diff([frame_weight(x, p) for x in q]) <= 0)
-    with pytest.raises(ValueError, match="familiar_low"):
-        MclParams(familiar_low=0.6, familiar_high=0.6)
-
-
 @settings(max_examples=40, deadline=None)
 @given(
     lik=st.lists(st.floats(0, 1e6, allow_nan=False), min_size=1, max_size=20),
@@ -188,31 +174,26 @@ def test_tempering_matches_a_naive_loop_and_keeps_the_order(lik: list[float], po
     assert np.all(np.diff(out[order]) >= -1e-12)  # a likelier particle never weighs less
 
 
-def test_an_unfamiliar_frame_leaves_the_weights_as_they_were() -> None:
-    """familiarity 1 (the frame matches the tour no better than its images match wrong
-    places): the particles move with the odometry but no weight changes."""
+def test_temper_zero_leaves_the_weights_as_they_were() -> None:
+    """temper 0: the particles move with the odometry but no frame changes a weight."""
     poses = np.column_stack([np.arange(50) * 0.1, np.zeros(50), np.zeros(50)])
-    mcl = MonteCarloLocaliser(poses, MclParams(enabled=True, resample_ess=0.0))
+    mcl = MonteCarloLocaliser(poses, MclParams(enabled=True, temper=0.0, resample_ess=0.0))
     mcl.weights = np.linspace(1, 2, len(mcl.weights))
     mcl.weights /= mcl.weights.sum()
     before = mcl.weights.copy()
-    mcl.step(v=0.3, w=0.0, dt=0.1, scores=np.exp(-np.arange(50) / 5), familiarity=1.0)
+    mcl.step(v=0.3, w=0.0, dt=0.1, scores=np.exp(-np.arange(50) / 5))
     assert mcl.weights == pytest.approx(before)
-    mcl.step(v=0.3, w=0.0, dt=0.1, scores=np.exp(-np.arange(50) / 5), familiarity=0.0)
-    assert not np.allclose(mcl.weights, before)
 
 
 def test_temper_one_and_the_old_floor_weigh_as_the_likelihood_itself() -> None:
-    """temper 1 with floor 1e-3 (the defaults before 2026-11-29) and a familiar frame (or
-    one of unknown familiarity): the new weights are the old ones times the likelihood,
-    normalised, as before."""
+    """temper 1 with floor 1e-3 (the defaults before 2026-11-29): the new weights are the
+    old ones times the likelihood, normalised, as before."""
     poses = np.column_stack([np.arange(50) * 0.1, np.zeros(50), np.zeros(50)])
     scores = np.exp(-np.arange(50) / 5)
     params = MclParams(enabled=True, floor=1e-3, temper=1.0, resample_ess=0.0, seed=4)
     top = np.argsort(-scores)[: params.top_k]
-    for known in (math.nan, 0.05):
-        a = MonteCarloLocaliser(poses, params)
-        prior = a.weights.copy()
-        a.step(v=0.3, w=0.0, dt=0.1, scores=scores, familiarity=known)
-        lik = likelihood(a.particles, poses[top], scores[top], params)
-        assert a.weights == pytest.approx(prior * lik / (prior * lik).sum(), rel=1e-9)
+    a = MonteCarloLocaliser(poses, params)
+    prior = a.weights.copy()
+    a.step(v=0.3, w=0.0, dt=0.1, scores=scores)
+    lik = likelihood(a.particles, poses[top], scores[top], params)
+    assert a.weights == pytest.approx(prior * lik / (prior * lik).sum(), rel=1e-9)
