@@ -19,9 +19,9 @@ system does not have:
 * **temper** (:func:`temper`): the likelihood, scaled so that its best particle has 1, is
   raised to a power below 1 (``temper``). Consecutive frames are not independent views (a
   robot turning on the spot sees the same look-alike door for a second; one off the taught
-  paths still has a best match): taken at face value, a few such frames left the right
-  particles with 1e-3 of the weight each, resampling dropped them and the cloud settled in
-  the look-alike.
+  paths still has a best match): taken at face value, each such frame cut the weight of the
+  particles at the right place to 1e-3 of the best ones', resampling soon dropped them and
+  the cloud settled in the look-alike.
 * **resample** (:func:`resample`, systematic) when the effective sample size falls below
   ``resample_ess`` of the particles; then ``inject`` of them are re-drawn at the poses of the
   best-scoring images (sensor resetting: a kidnapped robot or a wrong mode recovers).
