@@ -587,7 +587,7 @@ def replay(
     from server.belief.appearance import familiarity
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
-    from server.navigation.runtime import related_states
+    from server.navigation.runtime import preferred, related_states
     from server.policy.costs import CostParams, cost_to_goal
     from server.policy.voting import decide
     from server.vision.features import extract
@@ -619,9 +619,6 @@ def replay(
             lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
             best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
             known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
-            if mcl is not None:
-                pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=sims[0].image)
-                out.mcl_xy.append((pose.x, pose.y))
         else:
             t1 = t0
             obs = observations[i]
@@ -629,6 +626,11 @@ def replay(
         out.observations.append(Observation(lik, best, known))
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, familiarity=known)
+        if mcl is not None and observations is None:
+            # as in navigation: the scores of the appearance model the belief now trusts most
+            scores = preferred(sims, summary).image
+            pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=scores)
+            out.mcl_xy.append((pose.x, pose.y))
         decision = decide(graph, summary.belief, goal, costs)
         t3 = time.perf_counter()
         action = next_action(decision.action, action_mode)
