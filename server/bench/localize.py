@@ -626,16 +626,16 @@ def replay(
         out.observations.append(Observation(lik, best, known))
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, familiarity=known)
-        if mcl is not None and observations is None:
-            # as in navigation: the scores of the appearance model the belief now trusts most
-            scores = preferred(sims, summary).image
-            pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=scores)
-            out.mcl_xy.append((pose.x, pose.y))
         decision = decide(graph, summary.belief, goal, costs)
         t3 = time.perf_counter()
         action = next_action(decision.action, action_mode)
         traj = tracker.smoothed()
         t4 = time.perf_counter()
+        if mcl is not None and observations is None:  # after the belief, outside the timings
+            # as in navigation: the scores of the appearance model the belief now trusts most
+            scores = preferred(sims, summary).image
+            pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=scores)
+            out.mcl_xy.append((pose.x, pose.y))
         if traj is not None:
             # window entry j is step (i + 1) - (len - 1) + j; step s saw query frame s - 1
             first = i + 1 - (len(traj.fine) - 1)
