@@ -184,6 +184,12 @@ class FindEdge:
     forward (not the turn on the spot before it: the spin itself finds the heading); turning
     back on an edge, anywhere along the reverse edge. It forgets its search whenever the policy
     stops asking for it, and after an :class:`Unstick` (which moved the robot elsewhere).
+
+    With ``AmbiguityParams.alike_departures``, a departure carries on when the policy asks for
+    another edge whose images along the same stretch look like this frame as well (a look-alike
+    room's door: the belief, split over the look-alike rooms, flips the vote between their
+    edges from frame to frame, and each flip turned the robot back to searching after 0.1-0.7 s
+    of driving, so it never left the room whose views would tell them apart).
     """
 
     name = "find-edge"
@@ -200,8 +206,34 @@ class FindEdge:
         self._events: frozenset[str] = frozenset()
 
     def _edge(self, obs: Observation) -> int | None:
+        """The edge to find (or to keep leaving along, :meth:`_alike`), or ``None``."""
         a = obs.decision.action
-        return a.edge if a.kind == ActionKind.ROTATE_AND_FIND_EDGE else None
+        if a.kind != ActionKind.ROTATE_AND_FIND_EDGE or a.edge is None:
+            return None
+        leaving = None if self._unstuck(obs) else self.leaving
+        if (
+            leaving is not None
+            and self._alike(obs, leaving, a.edge)
+            and self._leave(obs, leaving[0]) is not None
+        ):
+            return leaving[0]
+        return a.edge
+
+    def _alike(self, obs: Observation, leaving: tuple[int, int, int], asked: int) -> bool:
+        """Whether the policy, asking for edge ``asked`` while the robot drives onto an edge
+        (``leaving``: edge, image along it, misses), asks for a look-alike: this frame matches
+        ``asked`` as well, along the same stretch from where the taught robot set off (at least
+        ``found_similarity``, the bar a search needs to find it)."""
+        edge, k, _ = leaving
+        if asked == edge or not self.rt.params.ambiguity.alike_departures:
+            return False
+        rt = self.rt
+        j = rt.departure[asked] + k - rt.departure[edge]
+        last = rt.graph.edges[asked].n_images - 1
+        window = [rt.edge_image(asked, i) for i in range(max(0, j - 2), min(j + 8, last) + 1)]
+        if not window:
+            return False
+        return float(obs.similarity.image[window].max()) >= rt.params.motion.found_similarity
 
     def _leave(self, obs: Observation, edge: int) -> tuple[int, int] | None:
         """Where the robot driving onto ``edge`` is now (image, misses), or ``None`` when it is
@@ -266,7 +298,7 @@ class FindEdge:
         if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
             self._forget()
             return None
-        edge = obs.decision.action.edge
+        edge = self._edge(obs)
         if edge is None:
             return None
         if self.explore_until is not None:  # explored after a fruitless turn: search afresh
@@ -276,6 +308,8 @@ class FindEdge:
             k, misses = leave
             self.leaving, self.searched_rad = (edge, k, misses), 0.0
             command = follow_command(self.rt, obs.views, edge, k + 1, "leave")
+            if edge != obs.decision.action.edge:  # the vote flipped to a look-alike: on
+                return Proposal(command, "driving on: the edge asked for looks alike here")
             return Proposal(command, "driving onto the edge it found")
         self.leaving = None
         command, why = self._search(obs, edge)

@@ -150,6 +150,51 @@ def test_find_edge_forgets_where_it_was_leaving_after_an_unstick() -> None:
     assert finder.leaving is None
 
 
+def _asked_for(finder: FindEdge, rt, edge: int, similarity: np.ndarray):
+    """The frame after ``finder`` lined up with edge 0 and began to leave along it: the policy
+    now asks for ``edge``. Edge 0's views home dead ahead, ``edge``'s a fifth of the image to
+    the side (seen, not lined up: the robot has moved on since)."""
+    base = search_obs(rt, edge=edge, t=1.1, offset=0.0)
+    obs = replace(base, similarity=replace(base.similarity, image=similarity))
+    wanted = finder.wants(obs)
+    on_0 = {rt.edge_image(0, k) for k in range(GRAPH.edges[0].n_images)}
+    views = Views(
+        offsets={i: homing(0.0 if i in on_0 else 0.2) for i in wanted.offsets},
+        scales=dict.fromkeys(wanted.scales),
+    )
+    return finder.propose(replace(obs, views=views))
+
+
+@pytest.mark.parametrize(
+    ("alike_departures", "alike", "leaves_along"),
+    [(True, True, 0), (True, False, None), (False, True, None)],
+)
+def test_find_edge_carries_on_when_the_vote_flips_to_a_look_alike_edge(
+    alike_departures: bool, alike: bool, leaves_along: int | None
+) -> None:
+    """Leaving along edge 0, the policy asks for edge 2 instead (a split belief's vote
+    flipping between look-alike rooms' doors). The robot carries on along edge 0 only when the
+    option is on and the frame looks like edge 2's departure as well; otherwise it searches
+    for edge 2 (today's behaviour)."""
+    params = runtime().params
+    rt = runtime(ambiguity=replace(params.ambiguity, alike_departures=alike_departures))
+    finder = FindEdge(rt)
+    found = finder.propose(search_obs(rt, t=1.0, offset=0.0))
+    assert found.command.behaviour == "leave" and finder.leaving is not None
+    similarity = np.full(GRAPH.n_images, 0.1)
+    similarity[[rt.edge_image(0, k) for k in range(4)]] = 0.9  # still on edge 0's departure
+    seen = rt.params.motion.found_similarity + (0.05 if alike else -0.05)
+    similarity[[rt.edge_image(2, k) for k in range(4)]] = seen
+    out = _asked_for(finder, rt, 2, similarity)
+    if leaves_along is None:
+        assert out.command.action == Action.rotate(2) and out.command.behaviour == "search"
+        assert finder.leaving is None
+    else:
+        assert out.command.behaviour == "leave" and "looks alike" in out.reason
+        assert out.command.action == Action.navigate(leaves_along)
+        assert finder.leaving is not None and finder.leaving[0] == leaves_along
+
+
 def _drive_along(finder: FindEdge, rt, *, t: float, seconds: float) -> float:
     """Frames of the robot driving along edge 0 (the policy navigating), then one searching."""
     leaving = outcome(Command(0.2, 0.0, Action.navigate(0), None, "leave"), "find-edge")
