@@ -7,18 +7,6 @@ server) inside ``run`` so that building the parser stays cheap.
 
 from __future__ import annotations
 
-import os
-
-# One BLAS thread: the server runs many small matrix products, and OpenBLAS's worker threads
-# busy-wait on the cores the request threads need (bench load, 10 robots: p99 3.4 s -> 21 ms).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-# One OpenCV thread, for the same reason: its operations on a 320x240 frame are too small to
-# share, and splitting them cost CPU without saving time (a frame's features: 3.0 ms of CPU
-# with OpenCV's two threads, 2.7 ms with one; a docking step's four zoomed extractions 11.8
-# ms against 8.6 ms; docs/reliability.md, "2026-11-28")
-os.environ.setdefault("OPENCV_FOR_THREADS_NUM", "1")
-
 import argparse
 import importlib
 import importlib.util
@@ -26,6 +14,11 @@ import signal
 import sys
 import threading
 from collections.abc import Sequence
+
+from server.threads import pin_environment
+
+# one thread for BLAS and OpenCV, before NumPy or OpenCV are imported (server/threads.py)
+pin_environment()
 
 # (command path, module, help). The module provides add_arguments(parser) and run(args) -> int.
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
@@ -117,6 +110,8 @@ def _exit_on_sigterm(signum: int, frame: object) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``teachrepeat`` console script."""
+    from server.threads import pin_threads
+
     args, unknown = build_parser().parse_known_args(argv)
     if unknown:  # the sub-command's usage, not the top level's, says what it takes
         args._parser.error(f"unrecognized arguments: {' '.join(unknown)}")
@@ -125,7 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     handle = in_main and args._module != "server.serve"
     previous = signal.signal(signal.SIGTERM, _exit_on_sigterm) if handle else None
     try:
-        return int(importlib.import_module(args._module).run(args) or 0)
+        module = importlib.import_module(args._module)
+        pin_threads()  # the libraries the command loaded too
+        return int(module.run(args) or 0)
     finally:
         if handle:
             signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)

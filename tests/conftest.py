@@ -27,6 +27,14 @@ if TYPE_CHECKING:
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """One thread for BLAS and OpenCV, as in every process of the server (server/threads.py):
+    the tests' own computations and the servers they start sum in the same order."""
+    from server.threads import pin_threads
+
+    pin_threads()
+
+
 def data_root() -> Path:
     return Path(os.environ.get("TEACHREPEAT_DATA", PROJECT_ROOT.parent / "shared" / "data"))
 

@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from server.bench.common import stats
 from server.bench.common import write_json as _write_json
+from server.threads import pin_threads
 from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.index import EngineParams, TourIndex
 from server.vision.learning import learn_weights
@@ -508,29 +509,8 @@ def _summary(acc: dict[str, Any]) -> str:
     )
 
 
-def limit_blas_threads(n: int = 1) -> str:
-    """Set NumPy's bundled OpenBLAS to ``n`` threads even when NumPy was imported before the
-    environment variables could act (best effort); returns what was done."""
-    import ctypes
-    import glob
-    import os
-
-    libs = glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "numpy.libs", "*openblas*"))
-    for path in libs:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in ("scipy_openblas_set_num_threads64_", "openblas_set_num_threads"):
-            if hasattr(lib, name):
-                getattr(lib, name)(ctypes.c_int(n))
-                return f"{name}({n})"
-    return "environment variables only"
-
-
 def run_all(args: argparse.Namespace) -> dict[str, Any]:
-    cv2.setNumThreads(1)
-    blas = limit_blas_threads(1)
+    blas = pin_threads()
     quick = bool(args.quick)
     ds = load(Path(args.data), quick)
     sizes_arg = args.sizes or ("300" if quick else "1000,10000,100000")
@@ -607,7 +587,7 @@ def run_all(args: argparse.Namespace) -> dict[str, Any]:
             "engine_params": _params_dict(params),
             "baseline": "ORB nfeatures=500 on the original image, BFMatcher NORM_HAMMING "
             "knnMatch k=2, ratio 0.75, best = most good matches, every stored image",
-            "threads": f"cv2.setNumThreads(1), OMP/OPENBLAS/MKL_NUM_THREADS=1, {blas}",
+            "threads": f"OMP/OPENBLAS/MKL_NUM_THREADS=1, {blas}",
             "speed_setup": extraction["notes"],
             "protocol": {
                 "corridor": "ref = index (state = each image), query -> ref, ground_truth.json",

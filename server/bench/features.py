@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.bench.common import DESCRIPTOR_CHOICES, default_data_dir, stats, write_json
+from server.threads import pin_threads
 
 if TYPE_CHECKING:
     from server.bench._retrieval_impl import Datasets
@@ -325,7 +326,6 @@ def _kinds(spec: str) -> list[DescriptorKind]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison described in the module doc; 0 on success, 2 on bad input."""
-    import cv2
 
     from server.bench import _retrieval_impl as impl
     from server.bench.localize import GroundTruth, list_frames, read_image
@@ -344,8 +344,7 @@ def run(args: argparse.Namespace) -> int:
             "pass --data DIR or set TEACHREPEAT_DATA"
         )
         return 2
-    cv2.setNumThreads(1)
-    blas = impl.limit_blas_threads(1)
+    blas = pin_threads()
     quick = bool(args.quick)
     t_start = time.perf_counter()
     ds = impl.load(data, quick)
@@ -409,7 +408,7 @@ def run(args: argparse.Namespace) -> int:
             "quick": quick,
             "data": str(data.resolve()),
             "engine_params": _params_dict(EngineParams()),
-            "threads": f"cv2.setNumThreads(1), {blas}",
+            "threads": blas,
             "timing_frames": len(frames),
             "corridor_frames": len(c_qry),
             "nordland": {"first_frame": lo, "frames": len(nord_ds.summer)},

@@ -43,6 +43,7 @@ import numpy.typing as npt
 from server.bench.common import DESCRIPTOR_CHOICES, stats, write_json
 from server.bench.localize_ambiguity import figures as ambiguity_figures
 from server.bench.localize_ambiguity import localiser
+from server.threads import pin_threads
 
 if TYPE_CHECKING:
     from server.belief.learning import FilterStep
@@ -1126,17 +1127,13 @@ def plan_directions(
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark described in the module doc; 0 on success, 2 on bad input."""
-    import cv2
-
     from server.belief.appearance import AppearanceParams
     from server.belief.model import TransitionParams
     from server.belief.tracker import TrackerParams
-    from server.bench._retrieval_impl import limit_blas_threads
     from server.vision.features import FeatureParams
     from server.vision.index import CHANGED_WEIGHTS, EngineParams
 
-    cv2.setNumThreads(1)
-    limit_blas_threads(1)
+    pin_threads()
     for folder in (args.reference, args.query):
         if not folder.is_dir():
             print(f"no frames at {folder}")

@@ -34,20 +34,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--tolerance",
-        type=float,
-        default=1e-9,
-        help="numbers closer than this are equal (default 1e-9)",
+        type=_tolerance,
+        default=1e-4,
+        metavar="REL",
+        help="belief, votes and similarities equal within this relative tolerance (default "
+        "1e-4: other CPUs sum float32 in another order); actions, edges, images, behaviours "
+        "and the task's state are always compared exactly, the command to 1 mm/s and 1 mrad/s; "
+        "0: every number equal to the last bit",
     )
     parser.add_argument(
         "--json", type=Path, default=None, help="write the comparison here as JSON (- : stdout)"
     )
 
 
+def _tolerance(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"{text} is not a relative tolerance in [0, 1)")
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     """Exit 0: no differences; 1: some frames differ; 2: the file or the database cannot be
     replayed (the message says why)."""
     from server.recording.reader import RecordingError, read_recording
-    from server.recording.replay import replay
+    from server.recording.replay import Tolerance, replay
 
     prog = "teachrepeat replay"
     db = args.db
@@ -62,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             db,
             settings=dict(args.settings),
             partial=args.partial,
-            tolerance=args.tolerance,
+            tolerance=Tolerance.of(args.tolerance),
         )
     except RecordingError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)

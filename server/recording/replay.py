@@ -12,6 +12,14 @@ frame: where the belief, the votes, the command or the task's state now differ.
 
 The database is copied first (a temporary file), so replay never writes to it. Replaying the
 same file twice gives the same comparison (timings go to stderr, not into it).
+
+What counts as a difference (:class:`Tolerance`): everything that decides behaviour is compared
+exactly (the action, the edge, the target image, the behaviour, the reason, names, indices, the
+task's state), the command's speeds to the robot's precision, and every other number (belief,
+votes, similarities) within a relative tolerance. The same code on another CPU, or with another
+BLAS kernel, sums float32 products in another order: the belief and votes then differ in the
+seventh digit (docs/recording.md, "Tolerance"), and demanding nine equal digits failed a replay
+on one machine that passed on the next.
 """
 
 from __future__ import annotations
@@ -42,6 +50,65 @@ if TYPE_CHECKING:
 
 REPLAY_ROBOT = "replay"
 """The robot the frames are sent as, in the copy of the database (a fresh session)."""
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """When two recorded numbers are equal.
+
+    Attributes:
+        relative (1e-4): floats ``a``, ``b`` are equal when ``|a - b| <= absolute + relative *
+            max(|a|, |b|)``. Chosen from the drift measured between two OpenBLAS kernels
+            (Haswell and SkylakeX) on this machine: at most 1.8e-6 relative (15 float32 units in
+            the last place) over a 167-frame task, and 2.5e-7 absolute; 1e-4 leaves a margin of
+            55x, and is still far below any change a setting makes.
+        absolute (1e-9): for floats that are zero, or nearly, in one of the runs.
+        command (1e-3): the command's ``v`` (m/s), ``w`` (rad/s) and ``ttl_s`` (s) are equal
+            within this: a robot cannot tell 1 mm/s or 1 mrad/s apart.
+
+    Integers (ids, indices, counts), strings, booleans and ``None`` are compared exactly.
+    :meth:`strict` (``--tolerance 0``) demands every number equal to the last bit.
+    """
+
+    relative: float = 1e-4
+    absolute: float = 1e-9
+    command: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if min(self.relative, self.absolute, self.command) < 0 or not all(
+            math.isfinite(x) for x in (self.relative, self.absolute, self.command)
+        ):
+            raise ValueError("tolerances must be finite and >= 0")
+
+    @classmethod
+    def strict(cls) -> Tolerance:
+        """Every number equal to the last bit."""
+        return cls(relative=0.0, absolute=0.0, command=0.0)
+
+    @classmethod
+    def of(cls, relative: float) -> Tolerance:
+        """The default tolerance with ``relative`` instead (0: :meth:`strict`)."""
+        return cls.strict() if relative == 0 else cls(relative=relative)
+
+    def equal(self, path: str, a: Any, b: Any) -> bool:
+        """Whether recorded ``a`` and replayed ``b`` at ``path`` (``command.v``,
+        ``belief.states[3]``) count as equal."""
+        if not (_number(a) and _number(b)):
+            return bool(a == b)
+        if isinstance(a, int) and isinstance(b, int):
+            return a == b
+        x, y = float(a), float(b)
+        if x == y:
+            return True
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return False
+        if path in COMMAND_FLOATS:
+            return abs(x - y) <= self.command
+        return abs(x - y) <= self.absolute + self.relative * max(abs(x), abs(y))
+
+
+COMMAND_FLOATS = frozenset({"command.v", "command.w", "command.ttl_s"})
+"""The command's numbers the robot executes: equal to its precision (:attr:`Tolerance.command`)."""
 
 
 @dataclass(frozen=True)
@@ -190,12 +257,12 @@ def replay(
     *,
     settings: dict[str, Any] | None = None,
     partial: bool = False,
-    tolerance: float = 1e-9,
+    tolerance: Tolerance = Tolerance(),
 ) -> tuple[ReplayReport, Timing]:
     """Replay ``recording`` against the tour it was recorded on in database ``db`` (copied
     first); ``settings``: navigation settings to change on top of the recorded ones (dotted
     names, as ``--set``); ``partial``: replay the whole frames of a file that was cut short;
-    ``tolerance``: numbers closer than this are equal.
+    ``tolerance``: when numbers are equal (:class:`Tolerance`).
 
     Raises :class:`RecordingError` (a teaching recording, a file cut short without
     ``partial``, a missing database, another tour, an unknown setting)."""
@@ -270,7 +337,7 @@ def _find_tour(repo: Repo, recording: Recording) -> int:
 
 
 def _replay_on(
-    recording: Recording, db: Path, settings: dict[str, Any], tolerance: float
+    recording: Recording, db: Path, settings: dict[str, Any], tolerance: Tolerance
 ) -> tuple[ReplayReport, Timing]:
     from server.imaging import ImageLimits
     from server.navigation import NavigationParams
@@ -374,9 +441,10 @@ def _start_belief(service: NavigationService, robot: str, recording: Recording) 
 
 
 def differences(
-    recorded: Any, replayed: Any, *, tolerance: float, path: str = ""
+    recorded: Any, replayed: Any, *, tolerance: Tolerance, path: str = ""
 ) -> Iterator[Difference]:
-    """Where two JSON values differ (numbers within ``tolerance`` are equal), as paths."""
+    """Where two JSON values differ (:meth:`Tolerance.equal` decides for every leaf), as
+    paths."""
     if isinstance(recorded, dict) and isinstance(replayed, dict):
         for key in sorted(set(recorded) | set(replayed)):
             sub = f"{path}.{key}" if path else str(key)
@@ -389,10 +457,7 @@ def differences(
             yield Difference(f"{path} (length)", len(recorded), len(replayed))
         for k, (a, b) in enumerate(zip(recorded, replayed, strict=False)):
             yield from differences(a, b, tolerance=tolerance, path=f"{path}[{k}]")
-    elif _number(recorded) and _number(replayed):
-        if abs(float(recorded) - float(replayed)) > tolerance:
-            yield Difference(path, recorded, replayed)
-    elif recorded != replayed:
+    elif not tolerance.equal(path, recorded, replayed):
         yield Difference(path, recorded, replayed)
 
 

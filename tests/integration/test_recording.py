@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import platform
 import shutil
 from collections import Counter
 from collections.abc import Iterator
@@ -29,7 +30,8 @@ from server import schemas
 from server.cli import main
 from server.process import ADMIN, start_server
 from server.recording.reader import RecordingError, read_recording
-from server.recording.replay import replay
+from server.recording.replay import Tolerance, replay
+from server.threads import openblas_core
 
 PLAN = Path(__file__).resolve().parents[1] / "data" / "plans" / "two_rooms.json"
 STEPS = 30
@@ -47,11 +49,25 @@ class Recorded:
     tour: schemas.TourGraphPublic
 
 
+def other_numerics() -> dict[str, str]:
+    """Environment for a server that sums float32 otherwise than this process: two BLAS
+    threads instead of one and, on x86-64, another OpenBLAS kernel than this CPU's (as another
+    machine would). Replay in this process must find no difference all the same."""
+    env = {"OPENBLAS_NUM_THREADS": "2", "OMP_NUM_THREADS": "2"}
+    if platform.machine().lower() in ("x86_64", "amd64"):
+        env["OPENBLAS_CORETYPE"] = "Sandybridge" if openblas_core() == "Haswell" else "Haswell"
+    return env
+
+
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Recorded]:
     tmp = tmp_path_factory.mktemp("recording")
     folder = tmp / "recordings"
-    env = {"TEACHREPEAT_RECORD": "true", "TEACHREPEAT_RECORD_DIR": str(folder)}
+    env = {
+        "TEACHREPEAT_RECORD": "true",
+        "TEACHREPEAT_RECORD_DIR": str(folder),
+        **other_numerics(),
+    }
     server = start_server(tmp / "rec.sqlite", extra_env=env)
     try:
         with TeachRepeatClient(server.url, ADMIN) as admin:
@@ -169,6 +185,14 @@ def test_replay_finds_no_difference_twice_alike_and_reports_a_changed_setting(
     assert report["frames_differing"] == 0 and report["differences"] == []
     out = capsys.readouterr()
     assert "no differences" in out.out and "x real time" in out.err
+
+    # recorded on other numerics (other_numerics): to the last bit, only numbers may differ
+    # (never an action, an edge, an image, a behaviour or the task's state), and by little
+    strict, _ = replay(read_recording(recorded.task), recorded.db, tolerance=Tolerance.strict())
+    for frame in strict.differing:
+        for d in frame.differences:
+            assert isinstance(d.recorded, float) and isinstance(d.replayed, float), d
+            assert abs(d.recorded - d.replayed) <= 1e-5 * max(abs(d.recorded), 1e-3), d
 
     # a slower turn while searching for an edge: the robot starts by searching
     changed, _ = replay(read_recording(recorded.task), recorded.db, settings={"motion.spin_w": 0.1})
