@@ -6,6 +6,8 @@ recorded folder of images or the simulated home. Units: metres, seconds, radians
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -67,3 +69,24 @@ class Clock(Protocol):
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` pass (the simulator advances its world by that much)."""
         ...
+
+
+@dataclass
+class RobotIO:
+    """One robot's devices as the robot agent drives them: what a driver module's
+    ``open_robot(args)`` returns (see :mod:`robot_client.drivers`). ``depth`` is ``None`` on a
+    robot without a depth sensor; ``close`` releases everything (safe to call twice)."""
+
+    camera: Camera
+    motors: Motors
+    clock: Clock
+    depth: DepthSensor | None = None
+    closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Stop the motors, then release every device in the reverse order of opening."""
+        try:
+            self.motors.stop()
+        finally:
+            while self.closers:
+                self.closers.pop()()
