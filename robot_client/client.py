@@ -205,7 +205,7 @@ class TeachRepeatClient:
         where the camera was, kept with a taught image."""
         params: dict[str, Any] = _meta(timestamp, v, w, pose)
         if depth is not None:
-            params["depth"] = [_wire_range(r) for r in depth]
+            params["depth"] = [wire_range(r) for r in depth]
         response = self._request(
             "POST",
             f"/robots/{robot}/frames",
@@ -320,7 +320,7 @@ def _meta(
     ).model_dump(exclude_none=True)
 
 
-def _wire_range(r: float) -> float:
+def wire_range(r: float) -> float:
     """One depth range as the server takes it: a ray that saw nothing (inf, NaN) or saw
     beyond ``schemas.MAX_DEPTH_M`` is sent as that maximum; millimetres are enough."""
     r = float(r)

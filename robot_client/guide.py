@@ -1,9 +1,9 @@
 """The teaching guide: a scripted person walks the simulated robot through the home.
 
 It uses the same client and REST API a real user would: start teaching, stream the frames of
-each path with the motion being executed, say "this is the kitchen" on arrival, spin there
-(the spin images become the place's images), and finish. Steering uses the simulator's ground
-truth, as a person leading the robot would use their eyes.
+each path with the robot's odometry, say "this is the kitchen" on arrival, spin there (the spin
+images become the place's images), and finish. Steering uses the simulator's ground truth, as a
+person leading the robot would use their eyes; the truth is never sent to the server.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
-from robot_client.client import TeachRepeatClient
+from robot_client.client import TeachRepeatClient, wire_range
 from robot_client.sim.floorplan import FloorPlan
 from robot_client.sim.paths import (
     GUIDE_CLEARANCE_M,
@@ -104,7 +104,11 @@ def guided_tour_steps(
 def recorded_steps(
     robot: SimulatedRobot, steps: Iterable[TourStep], params: GuideParams = GuideParams()
 ) -> Iterator[RecordedStep]:
-    """The camera's JPEG at every frame and spin step of ``steps`` (marks pass through)."""
+    """The camera's JPEG at every frame and spin step of ``steps`` (marks pass through), with
+    the robot's odometry since the image before (what a real robot reports: its measured
+    speeds, noise and all, never the commanded ones), its depth profile, and the simulator's
+    true pose for the judge (:class:`RecordedStep`: never uploaded)."""
+    robot.odometry()  # counts from the first image: what the wheels did before is not the tour's
     for item in steps:
         if item.kind == "mark" or item.step is None:
             yield RecordedStep(item.kind, item.place, 0.0, 0.0, 0.0, None)
@@ -114,8 +118,10 @@ def recorded_steps(
             raise RuntimeError("the simulated camera returned no frame")
         st = item.step
         jpeg = encode_jpeg(image, params.jpeg_quality)
+        v, w = robot.odometry()
         pose = (st.pose.x, st.pose.y, st.pose.theta)
-        yield RecordedStep(item.kind, item.place, st.t, st.v, st.w, jpeg, pose)
+        depth = tuple(wire_range(float(r)) for r in robot.profile())
+        yield RecordedStep(item.kind, item.place, st.t, v, w, jpeg, pose, depth)
 
 
 def record_tour(
@@ -150,14 +156,16 @@ def upload_tour(
                 continue
             if item.jpeg is None:  # only marks have no image
                 continue
+            # the true pose stays with the recording (for the judge): a robot sends only what
+            # it could know, its frames and odometry
             if item.kind == "spin":
                 client.upload_spin_image(
-                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, pose=item.pose
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w
                 )
                 label = f"spin {item.place}"
             else:
                 client.upload_frame(
-                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, pose=item.pose
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, depth=item.depth
                 )
                 label = f"to {item.place}"
             if on_frame:

@@ -4,8 +4,9 @@ Walking and rendering a tour is the slow part of teaching a simulated home; a be
 starts several servers (one per worker) records the tour once and uploads the recording to
 each of them through the same REST calls. The file is a NumPy ``.npz`` archive (no pickles):
 the JPEG bytes of every image end to end, their offsets, the step kinds, times and motions, the
-simulator's true pose of every image (format 2; NaN where there is none), and a JSON header
-(format version, the plan's SHA-256, the route, the place names).
+simulator's true pose of every image (format 2; NaN where there is none), the depth profile sent
+with it (format 3; a row of NaN where none), and a JSON header (format version, the plan's
+SHA-256, the route, the place names).
 """
 
 from __future__ import annotations
@@ -16,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-FORMAT = 2
+FORMAT = 3
 """Version of the file layout written; :data:`READABLE` ones are read, others refused."""
-READABLE = (1, 2)
-"""Format 1 has no poses (its steps read with ``pose`` None)."""
+READABLE = (1, 2, 3)
+"""Format 1 has no poses (its steps read with ``pose`` None), formats 1 and 2 no depth
+profiles (``depth`` None)."""
 
 KINDS = ("frame", "spin", "mark")
 
@@ -29,7 +31,9 @@ class RecordedStep:
     """One moment of a tour: ``kind`` ``"frame"`` (an image of the path to ``place``),
     ``"spin"`` (an image of the spin at ``place``) or ``"mark"`` ("this is ``place``": no
     image). ``t`` robot seconds, ``v`` m/s and ``w`` rad/s executed while the image was taken;
-    ``pose`` ``(x, y, theta)`` (m, m, rad) where the camera was, or ``None``."""
+    ``pose`` ``(x, y, theta)`` (m, m, rad) where the camera was (the simulator's truth, for
+    the judge: never uploaded), or ``None``; ``depth`` the depth profile sent with the image
+    (metres, left to right), or ``None``."""
 
     kind: str
     place: str
@@ -38,6 +42,7 @@ class RecordedStep:
     w: float
     jpeg: bytes | None
     pose: tuple[float, float, float] | None = None
+    depth: tuple[float, ...] | None = None
 
 
 class RecordingError(ValueError):
@@ -85,6 +90,7 @@ class TourRecording:
                     [s.pose if s.pose is not None else (np.nan,) * 3 for s in self.steps],
                     dtype=np.float64,
                 ).reshape(-1, 3),
+                depth=_depth_rows(self.steps),
             )
         tmp.replace(path)
 
@@ -107,6 +113,7 @@ class TourRecording:
                 kind, place, tvw = z["kind"], z["place"], z["tvw"]
                 offsets, jpeg = z["offsets"], z["jpeg"].tobytes()
                 poses = z["pose"] if "pose" in z.files else np.full((len(kind), 3), np.nan)
+                depth = z["depth"] if "depth" in z.files else np.full((len(kind), 0), np.nan)
         except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
             if isinstance(exc, RecordingError):
                 raise
@@ -123,6 +130,7 @@ class TourRecording:
                     float(tvw[k, 2]),
                     blob if KINDS[int(kind[k])] != "mark" else None,
                     _pose(poses[k]),
+                    _depth(depth[k]),
                 )
             )
         return cls(
@@ -135,3 +143,23 @@ def _pose(row: np.ndarray) -> tuple[float, float, float] | None:
     if not np.all(np.isfinite(row)):
         return None
     return (float(row[0]), float(row[1]), float(row[2]))
+
+
+def _depth_rows(steps: tuple[RecordedStep, ...]) -> np.ndarray:
+    """``(n_steps, n_rays)`` float64 depth profiles, a row of NaN where a step has none (all
+    profiles of one tour have the same number of rays)."""
+    n = max((len(s.depth) for s in steps if s.depth is not None), default=0)
+    rows = np.full((len(steps), n), np.nan, dtype=np.float64)
+    for k, s in enumerate(steps):
+        if s.depth is not None:
+            if len(s.depth) != n:
+                raise ValueError("every depth profile of a tour recording has the same rays")
+            rows[k] = s.depth
+    return rows
+
+
+def _depth(row: np.ndarray) -> tuple[float, ...] | None:
+    """A stored depth row, or ``None`` when it holds NaN (none was sent)."""
+    if len(row) == 0 or not np.all(np.isfinite(row)):
+        return None
+    return tuple(float(r) for r in row)

@@ -14,6 +14,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+import numpy.typing as npt
 
 from robot_client.client import ApiError, TeachRepeatClient
 from robot_client.judge_localisation import LocalisationJudge
@@ -35,6 +36,59 @@ STUCK_M = 0.25
 """A robot that stays within this many metres through the final window made no progress."""
 
 CAUSES = ("wrong place", "off target", "stuck", "lost", "timeout")
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class TaughtTruth:
+    """Where the teaching robot really drove each taught edge (the simulator's truth, for the
+    judge only): edge id -> ``(n, 3)`` true poses of its images, in teaching order."""
+
+    edges: dict[int, FloatArray]
+
+    @classmethod
+    def of(cls, tour: schemas.TourGraphPublic, steps: Sequence[Any]) -> TaughtTruth:
+        """Pair the tour's edges (in id order, as they were taught) with the runs of path
+        frames between the marks of the recorded tour ``steps``
+        (:class:`robot_client.tour_recording.RecordedStep`, with true poses)."""
+        runs: list[list[tuple[float, float, float]]] = []
+        current: list[tuple[float, float, float]] = []
+        for step in steps:
+            if step.kind == "frame" and step.pose is not None:
+                current.append(step.pose)
+            elif step.kind == "mark":
+                if current:
+                    runs.append(current)
+                current = []
+        edges: dict[int, FloatArray] = {}
+        queue = list(runs)
+        for edge in sorted(tour.edges, key=lambda e: e.id):
+            while queue and len(queue[0]) != edge.image_count:
+                queue.pop(0)  # a path the server did not keep (too short)
+            if not queue:
+                break
+            edges[edge.id] = np.asarray(queue.pop(0), dtype=np.float64)
+        return cls(edges)
+
+    def error(self, edge: int, x: float, y: float) -> float | None:
+        """Metres from ``(x, y)`` to the nearest point of ``edge``'s true path (its images'
+        positions joined), or ``None`` for an edge it does not know."""
+        poses = self.edges.get(edge)
+        if poses is None or len(poses) == 0:
+            return None
+        pts = poses[:, :2]
+        p = np.array([x, y])
+        if len(pts) == 1:
+            return float(np.linalg.norm(p - pts[0]))
+        a, b = pts[:-1], pts[1:]
+        ab = b - a
+        ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+        f = np.clip(np.einsum("ij,ij->i", p - a, ab) / ab2, 0.0, 1.0)
+        near = a + f[:, None] * ab
+        return float(np.sqrt(np.min(np.einsum("ij,ij->i", p - near, p - near))))
+
+
 """Why a trial failed, in the order they are tested (see :func:`cause`)."""
 
 
@@ -80,6 +134,9 @@ class TrialResult:
     disambiguating_frames: int = 0  # the belief held separated hypotheses
     separating_frames: int = 0  # ... and the action was chosen to separate them
     mcl_error_m: tuple[float, ...] = ()  # Monte-Carlo position error of every frame, m
+    # topometric repeat: metres from the robot to the true path of the edge it follows, on
+    # every frame it follows one by its pose relative to the path (the simulator's truth)
+    tracking_error_m: tuple[float, ...] = ()
 
     @property
     def path_ratio(self) -> float:
@@ -189,11 +246,13 @@ def run_trial(
     max_steps: int = 2000,
     on_step: StepHook | None = None,
     record: bool | None = None,
+    truth: TaughtTruth | None = None,
 ) -> TrialResult:
     """Send the robot to ``goal`` from wherever it stands and drive until the task ends.
 
     ``tour`` (the taught graph) gives the shortest taught route for the path ratio;
-    ``record``: ask the server to record the task (``None``: its setting decides)."""
+    ``record``: ask the server to record the task (``None``: its setting decides);
+    ``truth``: where the taught paths really are, for the tracking error."""
     place = next(p for p in plan.places if p.name == goal)
     pose = robot.pose
     start = (pose.x, pose.y, pose.theta)
@@ -209,11 +268,18 @@ def run_trial(
     behaviours: dict[str, int] = {}
     localisation = LocalisationJudge(plan, tour)
 
+    tracking: list[float] = []
+
     def judge(step: int, result: schemas.NavigationFrameResult) -> None:
         pose, command = robot.pose, result.command
         localisation.observe(robot.now(), pose.x, pose.y, pose.theta, result)
         name = command.behaviour or "none"
         behaviours[name] = behaviours.get(name, 0) + 1
+        path = result.path
+        if truth is not None and path is not None and path.locked and name == "follow":
+            error = truth.error(path.edge, pose.x, pose.y)
+            if error is not None:
+                tracking.append(round(error, 4))
         log.append(
             StepLog(
                 robot.now(),
@@ -275,6 +341,7 @@ def run_trial(
         final_behaviour=log[-1].behaviour if log else None,
         final_reason=None if outcome.last is None else outcome.last.command.reason,
         cause=cause(success=success, state=state, reason=reason, wrong_arrival=wrong, log=log),
+        tracking_error_m=tuple(tracking),
         **localisation.summary(),
     )
 

@@ -192,6 +192,19 @@ def explore_command(depth: npt.ArrayLike | None, params: MotionParams) -> tuple[
     return params.explore_v, w
 
 
+def nearest_ahead(
+    depth: npt.ArrayLike | None, params: MotionParams, half_angle_rad: float = 0.6
+) -> float:
+    """The nearest range (m) of the depth rays within ``half_angle_rad`` of straight ahead;
+    ``inf`` without a depth profile (or nothing seen there)."""
+    ranges = _ranges(depth)
+    if ranges is None:
+        return math.inf
+    angles = ray_angles(len(ranges), params.depth_fov_deg)
+    ahead = ranges[np.abs(angles) <= half_angle_rad]
+    return float(ahead.min()) if len(ahead) else math.inf
+
+
 def open_side(depth: npt.ArrayLike | None, params: MotionParams) -> int:
     """``+1`` when the left half of the depth profile is more open (mean range, each ray
     counted up to ``open_m``) than the right, else ``-1``; ``+1`` without a depth profile."""

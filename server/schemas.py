@@ -415,15 +415,17 @@ class FrameMeta(_Model):
         max_length=256,
         description="Optional depth profile: ranges in metres, leftmost ray first "
         "(repeat the parameter: depth=1.2&depth=0.9...). Send the maximum (1000) for a ray "
-        "that saw nothing; infinity and NaN are refused.",
+        "that saw nothing; infinity and NaN are refused. Kept with a taught image, it lets "
+        "navigation tell how far beside the taught path the robot stands.",
     )
     pose: list[PoseValue] | None = Field(
         default=None,
         min_length=3,
         max_length=3,
         description="Optional pose of the camera while teaching: x and y in metres and the "
-        "heading in radians, in the robot's odometry frame (pose=x&pose=y&pose=theta; a "
-        "simulated robot sends its true pose). Taught images with poses let the server "
+        "heading in radians, in the robot's own odometry frame (pose=x&pose=y&pose=theta), "
+        "for a robot with a better pose source than its speeds (its wheel odometry topic, its "
+        "own SLAM): never a simulator's truth. Taught images with poses let the server "
         "localise the robot on a metric map as well (Monte-Carlo localisation); ignored "
         "while navigating.",
     )
@@ -522,6 +524,25 @@ class PosePublic(_Model):
     mode_mass: float = Field(description="Share of the particles within 1 m of this pose.")
 
 
+class PathPublic(_Model):
+    """Where the robot is relative to the taught path it follows (topometric repeat): the
+    path tracking filter's estimate in the frame of the edge it tracks (docs/navigation.md)."""
+
+    edge: int = Field(description="Id of the edge tracked.")
+    along_m: float = Field(description="Metres along the taught path of the robot's nearest point.")
+    lateral_m: float = Field(description="Metres to the left of the taught path (negative: right).")
+    heading_error: float = Field(description="The robot's heading minus the path's, radians.")
+    sigma_lateral_m: float = Field(description="Standard deviation of lateral_m, metres.")
+    sigma_along_m: float = Field(description="Standard deviation of along_m, metres.")
+    sigma_heading: float = Field(description="Standard deviation of the heading, radians.")
+    locked: bool = Field(description="Sure enough to steer by.")
+    length_m: float = Field(description="Length of the taught path, metres.")
+    image_id: int = Field(description="The taught image nearest the estimate.")
+    x: float = Field(description="The robot's position in the edge's frame (its first image), m.")
+    y: float = Field(description="The robot's position in the edge's frame, metres (left).")
+    theta: float = Field(description="The robot's heading in the edge's frame, radians.")
+
+
 class DisambiguationPublic(_Model):
     """The belief holds two or more separated hypotheses: where they are, and whether the
     action was chosen to tell them apart rather than by the votes (docs/ambiguity.md)."""
@@ -556,6 +577,11 @@ class NavigationFrameResult(_Model):
     )
     disambiguation: DisambiguationPublic | None = Field(
         default=None, description="Set while the belief holds separated hypotheses."
+    )
+    path: PathPublic | None = Field(
+        default=None,
+        description="Where the robot is relative to the taught path it tracks (topometric "
+        "repeat), while it tracks one.",
     )
 
 

@@ -20,6 +20,7 @@ from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation import Command, Frame, Navigator, Task, TaskState, TourRuntime
 from server.navigation.observation import Outcome
+from server.navigation.pathtrack import PathEstimate
 from server.policy.voting import Decision
 from server.vision.features import ImageFeatures
 from server.vision.index import Similarity
@@ -40,6 +41,7 @@ class StepRecord:
     step_ms: float
     outcome: Outcome | None = None
     mcl: MclEstimate | None = None  # the metric pose estimate, when Monte-Carlo localisation runs
+    path: PathEstimate | None = None  # the pose relative to the taught path (topometric repeat)
 
     def best_match(self) -> tuple[int, int | None, float | None]:
         """The most likely upper state, its best-matching stored image (canonical index, or
@@ -143,6 +145,7 @@ class RobotSession:
             step_ms=(time.perf_counter() - started) * 1000.0,
             outcome=step.outcome,
             mcl=step.mcl,
+            path=step.path,
         )
         self.history.append(record)
         if step.outcome is not None:

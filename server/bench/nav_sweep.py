@@ -128,6 +128,7 @@ class Worker:
         self.server = self._stack.enter_context(scratch_server("bench.sqlite", extra_env=env))
         self.plans = [load_plan(p) for p in config.plans]
         self._tours: dict[int, Any] = {}
+        self._truth: dict[int, Any] = {}  # where each plan's taught paths really are (judge)
         self._worlds: dict[tuple[int, str], Any] = {}
         self._experienced: dict[tuple[int, str], int] = {}  # images added per plan, condition
         self._junctions: dict[int, int] = {}  # junctions applied per plan (--junctions)
@@ -167,6 +168,9 @@ class Worker:
                     client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
                     client.stop(name)
                 self._tours[plan] = graph
+                from robot_client.trial import TaughtTruth
+
+                self._truth[plan] = TaughtTruth.of(graph, recording.steps)
             self.teach_s += time.perf_counter() - t0
             if self.config.record is not None:
                 keep_database(self.server.db, self._tour_database(plan))
@@ -211,8 +215,11 @@ class Worker:
                 goal,
                 tour=graph,
                 max_steps=self.config.max_steps,
-                on_step=None if self.config.trace is None else _tracer(robot, trace),
+                on_step=None
+                if self.config.trace is None
+                else _tracer(robot, trace, self._truth.get(spec.plan)),
                 record=True if self.config.record is not None else None,
+                truth=self._truth.get(spec.plan),
             )
             evidence = self._keep_recording(client, name, spec, result.success)
         if self.config.trace is not None:
@@ -315,13 +322,34 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name)
 
 
-def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]:
+def _tracer(
+    robot: Any, out: list[dict[str, Any]], taught: Any = None
+) -> Callable[[int, Any], None]:
     """A step hook that records the true pose, the command, the top beliefs, the belief over
-    appearance models, the change evidence and Monte-Carlo localisation's estimate (x, y,
-    theta, std_m, mode_mass; null when it does not run)."""
+    appearance models, the change evidence, Monte-Carlo localisation's estimate (x, y,
+    theta, std_m, mode_mass; null when it does not run) and the path tracker's (edge id,
+    along, lateral, heading error, their standard deviations, locked, and the true distance
+    to that edge's taught path, from ``taught``; null when it tracks none)."""
 
     def hook(step: int, result: Any) -> None:
         pose, c = robot.pose, result.command
+        path = result.path
+        tracked = None
+        if path is not None:
+            error = None if taught is None else taught.error(path.edge, pose.x, pose.y)
+            tracked = {
+                "edge": path.edge,
+                "along": round(path.along_m, 3),
+                "lateral": round(path.lateral_m, 3),
+                "heading": round(path.heading_error, 3),
+                "sd": [
+                    round(path.sigma_along_m, 3),
+                    round(path.sigma_lateral_m, 3),
+                    round(path.sigma_heading, 3),
+                ],
+                "locked": path.locked,
+                "true_error": None if error is None else round(error, 3),
+            }
         out.append(
             {
                 "step": step,
@@ -337,6 +365,7 @@ def _tracer(robot: Any, out: list[dict[str, Any]]) -> Callable[[int, Any], None]
                 "top": [[b.name, round(b.probability, 3)] for b in result.belief.top[:3]],
                 "appearance": [round(x, 3) for x in result.belief.appearance],
                 "light_change": round(result.belief.light_change, 3),
+                "path": tracked,
                 "mcl": None
                 if result.pose is None
                 else [

@@ -178,7 +178,36 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "failures_by_behaviour": dict(sorted(behaviours.items())),
         **localisation_summary(rows),
         **({"mcl": mcl_summary(rows)} if any(r.get("mcl_error_m") for r in rows) else {}),
+        "tracking_error_m": tracking_summary(rows),
+        "behaviour_share": behaviour_share(rows),
     }
+
+
+def tracking_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The tracking error while following a taught path by the pose relative to it (metres
+    from the simulator's true position to that edge's true taught path), over every such
+    frame of ``rows``: ``p50``, ``p90`` and how many frames."""
+    errors = [e for r in rows for e in r.get("tracking_error_m") or ()]
+    if not errors:
+        return {"p50": None, "p90": None, "frames": 0}
+    a = np.asarray(errors, dtype=np.float64)
+    return {
+        "p50": float(np.percentile(a, 50)),
+        "p90": float(np.percentile(a, 90)),
+        "frames": len(errors),
+    }
+
+
+def behaviour_share(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """The share of all frames of ``rows`` each behaviour drove the robot (following,
+    searching, exploring, retracing, ...), largest first."""
+    counts: Counter[str] = Counter()
+    for r in rows:
+        counts.update(r.get("behaviours") or {})
+    total = sum(counts.values())
+    if not total:
+        return {}
+    return {k: round(v / total, 4) for k, v in counts.most_common()}
 
 
 def _line(label: str, s: dict[str, Any]) -> str:
@@ -202,6 +231,12 @@ def _localisation_line(label: str, s: dict[str, Any]) -> str:
     if "mcl" in s:
         m = s["mcl"]
         text += f", MCL error p50 {m['median_error_m']:.2f} m p90 {m['p90_error_m']:.2f} m"
+    track = s.get("tracking_error_m") or {}
+    if track.get("frames"):
+        text += f", tracking error p50 {track['p50']:.2f} m p90 {track['p90']:.2f} m"
+    share = s.get("behaviour_share") or {}
+    if share:
+        text += "; frames: " + ", ".join(f"{k} {v:.0%}" for k, v in list(share.items())[:5])
     return text
 
 

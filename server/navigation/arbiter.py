@@ -9,9 +9,10 @@ behaviour      proposes when
 ``escape``     the winner wanted to drive forward for ``escape_s`` and the robot did not move
 ``place-dock`` the belief is at the goal before the robot came in along an edge
 ``unstick``    the stall watchdog fired: little driven for ``stall_s``
+``retrace``    the path tracker lost the taught path: back along the robot's own trace
 ``settle``     a departure from the place the belief is at lost its edge: dock on the place
 ``find-edge``  the policy says RotateAndFindEdge, or a fruitless search turn explores
-``follow``     the policy says Navigate
+``follow``     the policy says Navigate, or the path tracker has joined the edge sought
 ``explore``    the policy says Explore
 ``stand``      always (the policy's action, standing still)
 =============  ==========================================================================
@@ -36,6 +37,7 @@ PRECEDENCE: tuple[str, ...] = (
     "escape",
     "place-dock",
     "unstick",
+    "retrace",
     "settle",
     "find-edge",
     "follow",

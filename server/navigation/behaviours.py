@@ -15,17 +15,21 @@ from collections import Counter
 from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from server.belief.model import Action, ActionKind
 from server.motion import (
     explore_command,
     navigate_command,
+    nearest_ahead,
     open_heading,
     open_side,
     rotate_command,
 )
 from server.navigation.command import Command, Proposal
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
+from server.navigation.pathtrack import PathEstimate
+from server.navigation.pursuit import heading_error, lookahead_point, pursue, turn_to
 from server.navigation.runtime import TourRuntime
 
 
@@ -48,7 +52,7 @@ class Behaviour(Protocol):
 
 
 NOTHING = ViewRequest()
-MOVED_AWAY = frozenset({"unsticking", "escaping", "settling"})
+MOVED_AWAY = frozenset({"unsticking", "escaping", "settling", "retracing"})
 """Events that say the robot was driven elsewhere on the last frame, whatever it was doing."""
 
 
@@ -136,8 +140,62 @@ def follow_command(rt: TourRuntime, views: Views, edge: int, k: int, behaviour: 
     return Command(v, w, Action.navigate(edge), target, behaviour)
 
 
+END_M = 0.05
+"""Within this of the end of the route the path follower stands (and turns to the taught
+heading at the goal), metres."""
+
+
+def tracked(obs: Observation) -> PathEstimate | None:
+    """The path estimate, when the tracker is locked on the edge the policy asks for (the
+    active edge of Navigate, or the edge RotateAndFindEdge looks for: the robot has joined it
+    from where it stands)."""
+    est = obs.path
+    if est is None or not est.locked:
+        return None
+    return est if asked_edge(obs) == est.edge else None
+
+
+def asked_edge(obs: Observation) -> int | None:
+    """The edge the policy asks to be on: Navigate's active edge, or the edge
+    RotateAndFindEdge looks for (``None`` for Explore and DoNothing)."""
+    a = obs.decision.action
+    if a.kind == ActionKind.NAVIGATE:
+        return obs.decision.active_edge if obs.decision.active_edge is not None else a.edge
+    if a.kind == ActionKind.ROTATE_AND_FIND_EDGE:
+        return a.edge
+    return None
+
+
+def track_command(rt: TourRuntime, obs: Observation, est: PathEstimate) -> tuple[Command, str]:
+    """Follow the taught path by the pose relative to it (regulated pure pursuit,
+    :mod:`server.navigation.pursuit`); at the end of the route, face the way the path was
+    taught into the goal."""
+    tp = rt.params.topometric
+    path = rt.paths[est.edge]
+    into_goal = rt.graph.edges[est.edge].target == obs.goal
+    action = Action.navigate(est.edge)
+    if est.remaining_m <= END_M:
+        if not into_goal:
+            return Command(0.0, 0.0, action, est.image, "follow"), "at the end of the path"
+        error = heading_error(est.pose, float(path.poses[-1, 2]))
+        v, w = (0.0, 0.0) if abs(error) <= 0.05 else turn_to(error, tp.pursuit)
+        return Command(v, w, action, est.image, "follow"), "at the goal: facing the way taught"
+    target = lookahead_point(path, est.along_m, est.lateral_m, tp.pursuit)
+    v, w = pursue(
+        est.pose,
+        target,
+        params=tp.pursuit,
+        remaining_m=est.remaining_m,
+        nearest_m=nearest_ahead(obs.depth, rt.params.motion),
+    )
+    why = f"tracking the path {est.lateral_m:+.2f} m to its side (sd {est.sigma_lateral:.2f} m)"
+    return Command(v, w, action, est.image, "follow"), why
+
+
 class Follow:
-    """Navigate: home along the active edge on the image after the most likely one."""
+    """Follow the taught path: by the pose relative to it while the path tracker is locked on
+    the edge the policy asks for (topometric repeat, :func:`track_command`); otherwise, on
+    Navigate, home along the active edge on the image after the most likely one."""
 
     name = "follow"
 
@@ -152,9 +210,14 @@ class Follow:
 
     def wants(self, obs: Observation) -> ViewRequest:
         target = self._target(obs)
-        return NOTHING if target is None else follow_views(self.rt, *target)
+        if target is None or tracked(obs) is not None:
+            return NOTHING
+        return follow_views(self.rt, *target)
 
     def propose(self, obs: Observation) -> Proposal | None:
+        est = tracked(obs)
+        if est is not None:
+            return Proposal(*track_command(self.rt, obs, est))
         target = self._target(obs)
         if target is None:
             return None
@@ -268,7 +331,7 @@ class FindEdge:
 
     def wants(self, obs: Observation) -> ViewRequest:
         edge = self._edge(obs)
-        if edge is None or self._exploring(obs):
+        if edge is None or self._exploring(obs) or tracked(obs) is not None:
             return NOTHING
         leave = None if self._unstuck(obs) else self._leave(obs, edge)
         if leave is not None:
@@ -295,8 +358,8 @@ class FindEdge:
             self.leaving, self.searched_rad = None, 0.0
         if self._exploring(obs):
             return self._explore(obs)
-        if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE:
-            self._forget()
+        if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE or tracked(obs):
+            self._forget()  # (the path tracker has joined the edge: following takes over)
             return None
         edge = self._edge(obs)
         if edge is None:
@@ -359,6 +422,73 @@ class FindEdge:
         mp = self.rt.params.motion
         command = Command(*explore_command(obs.depth, mp), Action.explore(), None, "unstick")
         return Proposal(command, self.why)
+
+    def events(self) -> frozenset[str]:
+        return self._events
+
+
+# -- retracing -----------------------------------------------------------------------------------
+
+
+class Retrace:
+    """Recovery by retracing: a path tracker that has lost the taught path for
+    ``TopometricParams.retrace_after_s`` while the policy still asks for that edge drives back
+    along the robot's own odometry trace (backwards, so the camera keeps facing the way the
+    path goes) to where it was last locked on, at most ``retrace_max_m`` back, then lets the
+    others carry on from there (the camera sees what it saw when it knew where it was). Once
+    per place it was last locked on; spinning and exploring remain for a robot with no trace
+    (carried elsewhere)."""
+
+    name = "retrace"
+
+    def __init__(self, runtime: TourRuntime) -> None:
+        self.rt = runtime
+        self.active = False
+        self.done: set[tuple[int, float, float]] = set()  # last-locked poses retraced to
+        self._events: frozenset[str] = frozenset()
+
+    def wants(self, obs: Observation) -> ViewRequest:
+        return NOTHING
+
+    def propose(self, obs: Observation) -> Proposal | None:
+        self._events = frozenset()
+        tp = self.rt.params.topometric
+        est, route = obs.path, obs.retrace
+        if not tp.enabled or est is None or est.locked or not route:
+            self.active = False
+            return None
+        asked = asked_edge(obs)
+        if asked != est.edge or (not self.active and est.since_fix_s < tp.retrace_after_s):
+            self.active = False
+            return None
+        goal = route[-1]
+        key = (est.edge, round(float(goal[0]), 2), round(float(goal[1]), 2))
+        if key in self.done:
+            return None
+        points = np.array([p[:2] for p in route])
+        length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+        if length > tp.retrace_max_m:
+            self.done.add(key)
+            return None
+        here = est.pose[:2]
+        if float(np.linalg.norm(here - goal[:2])) <= 0.08:
+            self.active = False
+            self.done.add(key)
+            stand = Command(0.0, 0.0, Action.navigate(est.edge), est.image, "retrace")
+            return Proposal(stand, "back where the path was last tracked")
+        self.active = True
+        self._events = frozenset({"retracing"})
+        return Proposal(self._back(est, points), "lost the path: driving back along its trace")
+
+    def _back(self, est: PathEstimate, points: npt.NDArray[np.float64]) -> Command:
+        """Reverse pure pursuit toward the trace point ~0.3 m back (or its end)."""
+        tp = self.rt.params.topometric
+        dist = np.linalg.norm(points - est.pose[:2], axis=1)
+        far = np.nonzero(dist >= 0.3)[0]
+        target = points[far[0]] if len(far) else points[-1]
+        flipped = np.array([est.pose[0], est.pose[1], est.pose[2] + np.pi])
+        v, w = pursue(flipped, target, params=tp.pursuit, remaining_m=float(dist[-1]))
+        return Command(-min(v, 0.15), w, Action.navigate(est.edge), est.image, "retrace")
 
     def events(self) -> frozenset[str]:
         return self._events

@@ -8,7 +8,7 @@ from server.belief.model import Action
 
 BEHAVIOURS: dict[str, str] = {
     "stand": "standing still (no task, a task that ended, or DoNothing)",
-    "follow": "homing along a taught edge (Navigate)",
+    "follow": "following a taught path (by the pose relative to it, or by homing)",
     "leave": "driving onto the edge RotateAndFindEdge found",
     "search": "turning to find an edge (RotateAndFindEdge)",
     "explore": "heading for open space (Explore)",
@@ -18,6 +18,7 @@ BEHAVIOURS: dict[str, str] = {
     "dock": "creeping onto the place the belief arrived at, until the view's scale agrees",
     "place-dock": "docking on the goal's own spin images",
     "settle": "docking on a place's spin images before setting off from it again",
+    "retrace": "driving back along its own trace to where the taught path was last tracked",
 }
 """The values of :attr:`Command.behaviour`, with what they mean (shown on the dashboard)."""
 

@@ -332,6 +332,9 @@ class Docking:
             return None, False
         if not p.dock or a.edge is None or self.placing.second_axis:
             return None, True  # (the second axis ends in place docking's own verdict)
+        if self._tracked_there(obs, a.edge):
+            a.log_scales.clear()
+            return None, True
         if a.log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             a.dock_m += mp.dock_v * obs.dt
@@ -341,6 +344,21 @@ class Docking:
             turn = self._second_axis()
             return turn, turn is None
         return self._dock_move(a.edge, target, fit)
+
+    def _tracked_there(self, obs: Observation, edge: int) -> bool:
+        """Whether the path tracker, locked on ``edge``, puts the robot at its end (within
+        ``TopometricParams.arrive_m`` along and across, and facing the way taught into the
+        goal within ``arrive_rad``): the view's word, measured, with no scale to read."""
+        est, tp = obs.path, self.p.topometric
+        if est is None or not est.locked or est.edge != edge:
+            return False
+        end = self.rt.paths[edge].poses[-1]
+        heading = abs(float(np.angle(np.exp(1j * (float(est.pose[2]) - float(end[2]))))))
+        return (
+            est.remaining_m <= tp.arrive_m
+            and abs(est.lateral_m) <= tp.arrive_m
+            and heading <= tp.arrive_rad
+        )
 
     def _dock_move(self, edge: int, target: int, fit: ScaleResult) -> tuple[Proposal | None, bool]:
         """Creep on, back up, or settle (then the second axis) by the scale of ``fit``."""

@@ -25,6 +25,7 @@ from server.navigation.behaviours import (
     Explore,
     FindEdge,
     Follow,
+    Retrace,
     Stand,
     Unstick,
 )
@@ -38,6 +39,7 @@ from server.navigation.observation import (
     elapsed,
     perceive,
 )
+from server.navigation.pathtrack import PathEstimate, PathTracker
 from server.navigation.runtime import TourRuntime, preferred
 from server.navigation.settle import Settle
 from server.navigation.task import Task
@@ -56,6 +58,7 @@ class Crew:
             Backoff(runtime),
             Escape(runtime),
             Unstick(runtime),
+            Retrace(runtime),
             Settle(runtime),
             FindEdge(runtime),
             Follow(runtime),
@@ -84,7 +87,8 @@ def gave_up(events: frozenset[str]) -> str | None:
 @dataclass(frozen=True)
 class Step:
     """What one frame saw and decided. ``decision`` and ``outcome`` are ``None`` without a
-    task underway; ``mcl`` is the metric pose estimate when Monte-Carlo localisation runs."""
+    task underway; ``mcl`` is the metric pose estimate when Monte-Carlo localisation runs;
+    ``path`` the pose relative to the taught path being tracked (topometric repeat)."""
 
     features: ImageFeatures
     similarity: Similarity
@@ -93,6 +97,7 @@ class Step:
     command: Command
     outcome: Outcome | None
     mcl: MclEstimate | None = None
+    path: PathEstimate | None = None
 
 
 def localiser(runtime: TourRuntime) -> MonteCarloLocaliser | None:
@@ -118,6 +123,7 @@ class Navigator:
         self.previous: Outcome | None = None
         self.fresh = False  # a task has just started afresh: the next frame's dt is 0
         self.mcl = localiser(runtime)  # beside the belief, never steering
+        self.path: PathTracker | None = None  # the task's path tracker (topometric repeat)
 
     @property
     def last_command(self) -> Command | None:
@@ -135,6 +141,7 @@ class Navigator:
         next task's first frame)."""
         self.task = task
         self.crew = Crew(self.runtime, task.goal)
+        self.path = self._path_tracker()
         if self.params.fresh_belief:
             self.tracker.reset()
             self.last_action = Action.do_nothing()
@@ -147,6 +154,10 @@ class Navigator:
         far the approach had come is not persisted: it is done again)."""
         self.task = task
         self.crew = Crew(self.runtime, task.goal)
+        self.path = self._path_tracker()
+
+    def _path_tracker(self) -> PathTracker | None:
+        return self.runtime.path_tracker() if self.params.topometric.enabled else None
 
     def rebase(self, runtime: TourRuntime) -> None:
         """Move to a newer snapshot of the same tour (the belief restarts when states changed;
@@ -159,6 +170,7 @@ class Navigator:
         self.mcl = localiser(runtime)
         if self.task is not None:
             self.crew = Crew(runtime, self.task.goal)
+            self.path = self._path_tracker()
 
     def step(self, frame: Frame, *, wall: float = 0.0) -> Step:
         """Process one frame; ``wall`` is the wall clock (for the task's end time only)."""
@@ -203,6 +215,7 @@ class Navigator:
             hold_goal=crew.docking.approach.done,
             previous=self.previous,
             wants=crew.wants,
+            path=self.path,
         )
         crew.avoid.look(obs)
         proposals: dict[str, Proposal | None] = {b.name: b.propose(obs) for b in crew.motion}
@@ -229,4 +242,12 @@ class Navigator:
             command, winner = STAND, "stand"
             reason = f"task {task.state}" + (f": {task.reason}" if task.reason else "")
         self.previous = Outcome(command, winner, reason, proposals, events)
-        return Step(obs.features, obs.similarity, obs.summary, obs.decision, command, self.previous)
+        return Step(
+            obs.features,
+            obs.similarity,
+            obs.summary,
+            obs.decision,
+            command,
+            self.previous,
+            path=obs.path,
+        )

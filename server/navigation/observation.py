@@ -15,12 +15,14 @@ from typing import Generic, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.model import Action
+from server.belief.model import Action, ActionKind
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation.ambiguity import separate
 from server.navigation.command import Command, Proposal
+from server.navigation.pathtrack import PathEstimate, PathTracker
 from server.navigation.runtime import TourRuntime, preferred
-from server.policy.voting import Decision, decide
+from server.policy.voting import NAVIGATE as NAVIGATE_CODE
+from server.policy.voting import Decision, decide, plan_for
 from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
     HomingResult,
@@ -151,6 +153,10 @@ class Observation:
             (:meth:`TourRuntime.place_ambiguity`), when ``at_goal`` (else ``None``).
         views: the matches the behaviours asked for.
         previous: the last frame's :class:`Outcome` (``None`` on a task's first frame).
+        path: where the robot is relative to the taught path it tracks
+            (:class:`~server.navigation.pathtrack.PathEstimate`), ``None`` when it tracks none.
+        retrace: the poses to drive back through to where the path was last tracked (in the
+            tracked edge's frame, the most recent first; empty: nothing to retrace).
     """
 
     t: float
@@ -168,6 +174,8 @@ class Observation:
     goal_ambiguity: float | None
     views: Views
     previous: Outcome | None
+    path: PathEstimate | None = None
+    retrace: tuple[FloatArray, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -194,8 +202,10 @@ def perceive(
     hold_goal: bool,
     previous: Outcome | None,
     wants: Callable[[Observation], ViewRequest],
+    path: PathTracker | None = None,
 ) -> Observation:
-    """Features, similarities, the belief update, the policy's votes, then the views asked for.
+    """Features, similarities, the belief update, the policy's votes, the path tracker, then
+    the views asked for.
 
     Args:
         tracker: the robot's belief tracker; stepped once (its belief changes).
@@ -204,6 +214,7 @@ def perceive(
         hold_goal: the goal votes to leave by its round trip (not yet approached).
         previous: the last frame's outcome.
         wants: given the observation without views, the views the behaviours need.
+        path: the task's path tracker (stepped once), or ``None`` (topometric repeat off).
     """
     p = runtime.params
     features = extract(frame.image, p.features)
@@ -221,6 +232,21 @@ def perceive(
     )
     if p.ambiguity.disambiguate:
         decision = separate(runtime, summary.belief, decision, goal, hold_goal=hold_goal)
+    if path is not None:
+        decision = committed(runtime, summary.belief, decision, goal, path.estimate, hold_goal)
+    estimate = None
+    if path is not None:
+        wanted = path.wanted(decision)
+        estimate = path.step(
+            features,
+            t=frame.timestamp,
+            v=frame.v,
+            w=frame.w,
+            dt=dt,
+            decision=decision,
+            along_belief=None if wanted is None else runtime.belief_image(summary.belief, wanted),
+            depth=frame.depth,
+        )
     mass = float(summary.belief[runtime.at_location[goal]].sum())
     agrees = summary.evidence >= p.tracker.localised_evidence
     at_goal = mass >= p.arrive_mass and agrees and steps + 1 >= p.arrive_min_steps
@@ -240,8 +266,46 @@ def perceive(
         goal_ambiguity=runtime.place_ambiguity(goal) if at_goal else None,
         views=Views(),
         previous=previous,
+        path=estimate,
+        retrace=() if path is None else tuple(path.retrace_route()),
     )
     return replace(seen, views=match_views(runtime, frame.image, features, wants(seen)))
+
+
+def committed(
+    runtime: TourRuntime,
+    belief: FloatArray,
+    decision: Decision,
+    goal: int,
+    estimate: PathEstimate | None,
+    hold_goal: bool,
+) -> Decision:
+    """The decision, or, while the path tracker is locked on an edge the belief still holds
+    (``TopometricParams.commit_mass`` on its images, its start and its end place), the vote of
+    the tracked image when that is to go on along it: the tracker knows where along the edge
+    the robot is better than the split belief does (look-alike edges leaving a place flip the
+    vote from frame to frame). Explore, a decision for the tracked edge, and any decision at
+    the end of the tracked edge (the next edge is the policy's to choose) are left alone."""
+    if estimate is None or not estimate.locked or decision.action.kind == ActionKind.EXPLORE:
+        return decision
+    if estimate.remaining_m <= runtime.params.topometric.chain_m:
+        return decision  # at the end of the edge: the policy picks the next one
+    edge = estimate.edge
+    if decision.action.kind == ActionKind.NAVIGATE and decision.active_edge == edge:
+        return decision
+    g = runtime.graph
+    e = g.edges[edge]
+    lo = g.n_locations + int(g.edge_offsets[edge])
+    hi = g.n_locations + int(g.edge_offsets[edge + 1])
+    mass = float(belief[lo:hi].sum() + belief[e.source] + belief[e.target])
+    if mass < runtime.params.topometric.commit_mass:
+        return decision
+    plan = plan_for(g, goal, runtime.costs(goal), runtime.policy_params, hold_goal=hold_goal)
+    k = estimate.index
+    if plan.vote[lo + k] != NAVIGATE_CODE:
+        return decision
+    target = min(k + 1, e.n_images - 1)
+    return replace(decision, action=Action.navigate(edge), target_image=target, active_edge=edge)
 
 
 class LazyFits(Mapping[int, T | None], Generic[T]):

@@ -17,6 +17,7 @@ from server.belief.model import TransitionParams
 from server.belief.questions import QuestionParams
 from server.belief.tracker import TrackerParams
 from server.motion import MotionParams
+from server.navigation.pathtrack import TopometricParams
 from server.policy.costs import CostParams
 from server.policy.disambiguation import DisambiguationParams
 from server.policy.voting import PolicyParams
@@ -256,6 +257,8 @@ class NavigationParams:
       15/20 with 1-2), so they are an option, not the default.
     * ``ambiguity``: distinctiveness, least-ambiguous routes and active disambiguation
       (:class:`AmbiguityParams`).
+    * ``topometric``: following taught edges by the robot's pose relative to the taught path
+      (:class:`server.navigation.pathtrack.TopometricParams`).
     * ``mcl``: Monte-Carlo localisation over the taught images' poses, reported beside the
       topological belief and never steering (:class:`server.belief.mcl.MclParams`; off by
       default: it costs ~1 ms a frame and needs taught poses).
@@ -305,6 +308,7 @@ class NavigationParams:
     costs: CostParams = field(default_factory=CostParams)
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
+    topometric: TopometricParams = field(default_factory=TopometricParams)
     mcl: MclParams = field(default_factory=MclParams)
     learning: LearningParams = field(default_factory=LearningParams)
     questions: QuestionParams = field(default_factory=QuestionParams)

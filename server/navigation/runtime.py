@@ -16,13 +16,16 @@ from server.belief.appearance import familiarity
 from server.belief.model import BeliefModel, build_model
 from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
+from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
+from server.navigation.pathtrack import PathTracker
 from server.policy.costs import cost_to_goal
 from server.policy.disambiguation import fine_profiles
 from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
-from server.vision.homing import ZoomLevel, Zooms, taught_zoom_levels
+from server.vision.homing import HomingParams, ZoomLevel, Zooms, match_features, taught_zoom_levels
 from server.vision.index import Similarity, TourIndex
+from server.vision.relpose import relative_pose
 
 FloatArray = npt.NDArray[np.float64]
 #: Reads a taught image's pixels by canonical index: ``(H, W, 3) uint8`` BGR, or ``None``
@@ -98,6 +101,14 @@ class TourRuntime:
             np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
         )
         self._ambiguity: dict[int, float] = {}
+        # every edge's taught path, dead-reckoned from the taught odometry, and how edges meet
+        # at places (the heading of one's last image in the next one's frame, from the images)
+        self.paths = TaughtPaths.of(graph)
+        # the depth profiles taught with the images (canonical index -> metres, left to right),
+        # set by whoever built the runtime when the robot sent them
+        self.taught_depth: dict[int, npt.NDArray[np.float32]] = {}
+        self._links: dict[tuple[int, int], float | None] = {}
+        self._links_lock = threading.Lock()
         # how to read a taught image's pixels (set by whoever built the runtime), for
         # NavigationParams.dock_taught_zooms; without it docking zooms the frame only
         self.taught_pixels: TaughtPixels | None = None
@@ -136,6 +147,69 @@ class TourRuntime:
             while len(self._zoomed) > ZOOM_CACHE_IMAGES:
                 self._zoomed.popitem(last=False)
         return levels
+
+    def path_tracker(self) -> PathTracker:
+        """A fresh path tracking filter for one task on this tour."""
+        g = self.graph
+        return PathTracker(
+            self.paths.edges,
+            self.features,
+            self._edge_first,
+            self.params.topometric,
+            link=self.link,
+            edge_ends=tuple((e.source, e.target) for e in g.edges),
+            depth=self.taught_depth.get,
+        )
+
+    def link(self, edge_in: int, edge_out: int) -> float | None:
+        """The heading (rad) of ``edge_in``'s last image in ``edge_out``'s frame, where
+        ``edge_in`` ends at the place ``edge_out`` starts from; ``None`` when their images do
+        not overlap. Both were taught at the place: the turn between two of their images is
+        a rotation, read from the features (:func:`~server.vision.relpose.relative_pose`);
+        of the last images of ``edge_in`` (from where the taught robot stopped driving) and
+        the first of ``edge_out`` (until it set off), the pair that agrees best. Made once
+        per pair and kept."""
+        key = (edge_in, edge_out)
+        with self._links_lock:
+            if key in self._links:
+                return self._links[key]
+        found = self._find_link(edge_in, edge_out)
+        with self._links_lock:
+            self._links[key] = found
+        return found
+
+    def _find_link(self, edge_in: int, edge_out: int) -> float | None:
+        p_in, p_out = self.paths[edge_in], self.paths[edge_out]
+        if p_in.n_images == 0 or p_out.n_images == 0:
+            return None
+        ins = _spread(range(self.arrival[edge_in], p_in.n_images), 4)
+        outs = _spread(range(0, min(self.departure[edge_out] + 2, p_out.n_images)), 4)
+        camera = self.params.topometric.camera
+        best: tuple[int, float] | None = None
+        for j in ins:
+            for k in outs:
+                src, dst = match_features(
+                    self.features[self.edge_image(edge_in, j)],
+                    self.features[self.edge_image(edge_out, k)],
+                    params=HomingParams(),
+                )
+                fit = relative_pose(src, dst, camera, self.params.topometric.relpose)
+                if fit is None or (best is not None and fit.inliers <= best[0]):
+                    continue
+                # image j of edge_in, in edge_out's frame: image k's heading plus the turn
+                heading_j = float(p_out.poses[k, 2]) + fit.yaw
+                last = heading_j + float(p_in.poses[-1, 2] - p_in.poses[j, 2])
+                best = (fit.inliers, last)
+        return None if best is None else best[1]
+
+    def belief_image(self, belief: FloatArray, edge: int) -> int:
+        """The image of ``edge`` (index along it) the belief ``(n_fine,)`` puts most mass on."""
+        g = self.graph
+        lo = g.n_locations + int(g.edge_offsets[edge])
+        hi = g.n_locations + int(g.edge_offsets[edge + 1])
+        if hi <= lo:
+            return 0
+        return int(np.argmax(belief[lo:hi]))
 
     def place_ambiguity(self, location: int, near_m: float = 1.0) -> float:
         """How much the place's spin images look like elsewhere in the tour: the mean, over its
@@ -241,6 +315,14 @@ class TourRuntime:
         if self._levels is None or self._levels[0] != key:
             self._levels = (key, self.index.error_levels(related_states(self.graph)))
         return self._levels[1]
+
+
+def _spread(indices: range, most: int) -> list[int]:
+    """At most ``most`` of ``indices``, evenly spread (both ends kept)."""
+    if len(indices) <= most:
+        return list(indices)
+    picks = np.linspace(0, len(indices) - 1, most).round().astype(int)
+    return [indices[int(i)] for i in np.unique(picks)]
 
 
 def related_states(graph: TourGraph) -> npt.NDArray[np.bool_]:

@@ -26,6 +26,7 @@ from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
 from server.navigation import Command, NavigationParams, Task, TaskState, TourRuntime
+from server.navigation.pathtrack import PathEstimate
 from server.policy.voting import Decision
 from server.session import RobotSession, StepRecord
 from server.storage.repo import NavigationRow, Repo
@@ -249,6 +250,10 @@ class NavigationService:
         rt.taught_images = taught.n_images
         rt.mapped = refinement.mapped
         rt.taught_pixels = self._pixels([int(i) for i in graph.image_ids])
+        depths = self.repo.depths([int(i) for i in graph.image_ids])
+        rt.taught_depth = {
+            k: depths[int(i)] for k, i in enumerate(graph.image_ids) if int(i) in depths
+        }
         learned = self._weights(tour_id, rt)
         chosen = self.params.signature_weights
         rt.index.set_weights(learned if chosen is None else np.asarray(chosen, np.float64))
@@ -654,6 +659,26 @@ def frame_result(
         votes=votes,
         pose=None if record.mcl is None else pose_public(record.mcl),
         disambiguation=disambiguation_public(record.decision, graph),
+        path=None if record.path is None else path_public(record.path, graph),
+    )
+
+
+def path_public(est: PathEstimate, graph: TourGraph) -> schemas.PathPublic:
+    """The path tracker's estimate as the robot and the dashboard receive it."""
+    return schemas.PathPublic(
+        edge=graph.edges[est.edge].id,
+        along_m=round(est.along_m, 4),
+        lateral_m=round(est.lateral_m, 4),
+        heading_error=round(est.heading_error, 4),
+        sigma_lateral_m=round(est.sigma_lateral, 4),
+        sigma_along_m=round(est.sigma_along, 4),
+        sigma_heading=round(est.sigma_heading, 4),
+        locked=est.locked,
+        length_m=round(est.length_m, 4),
+        image_id=int(graph.image_ids[est.image]),
+        x=round(float(est.pose[0]), 4),
+        y=round(float(est.pose[1]), 4),
+        theta=round(float(est.pose[2]), 4),
     )
 
 

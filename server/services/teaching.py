@@ -178,6 +178,7 @@ class TeachingService:
                 location_id=row.current_location_id if spin else None,
                 pending_robot=None if spin else robot,
                 pose=None if meta.pose is None else (meta.pose[0], meta.pose[1], meta.pose[2]),
+                depth=meta.depth,
             )
             self.repo.set_teaching(
                 robot, current_location_id=row.current_location_id, last_timestamp=meta.timestamp

@@ -434,6 +434,15 @@ def belief_memory(db: Any) -> None:
     db.execute("ALTER TABLE navigation ADD COLUMN belief_memory TEXT")
 
 
+@migration(9)
+def image_depth(db: Any) -> None:
+    """The depth profile a robot sent with a taught image (``images.depth``: float32
+    little-endian ranges in metres, left to right; NULL when it sent none, as in older rows).
+    Topometric repeat matches a frame's profile against the taught image's to tell how far
+    beside the taught path the robot stands. A column is only added: nothing is lost."""
+    db.execute("ALTER TABLE images ADD COLUMN depth BLOB")
+
+
 def current_version(db: Any) -> int:
     if "schema_migrations" not in db.table_names():
         return 0

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from server.belief.junctions import Junction
 from server.domain import Edge, Location, TourGraph
@@ -657,9 +658,11 @@ class Repo:
         location_id: int | None = None,
         pending_robot: str | None = None,
         pose: Pose | None = None,
+        depth: Sequence[float] | None = None,
     ) -> int:
         """Store one image, owned by a location (spin image) or a robot's open path, with the
-        pose it was taken at when the robot sent one."""
+        pose it was taken at and its depth profile (metres, left to right) when the robot sent
+        them."""
         owner: str
         value: int | str | None
         if location_id is not None:
@@ -668,10 +671,11 @@ class Repo:
             owner, value = "pending_robot", pending_robot
         seq = self._q(f"SELECT COALESCE(MAX(seq), -1) + 1 FROM images WHERE {owner} = ?", (value,))
         x, y, theta = pose if pose is not None else (None, None, None)
+        ranges = None if depth is None else np.asarray(depth, dtype="<f4").tobytes()
         return self._insert(
             f"INSERT INTO images (tour_id, {owner}, seq, timestamp, v, w, width, height, jpeg, "
-            "pose_x, pose_y, pose_theta) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            (tour_id, value, seq[0][0], timestamp, v, w, width, height, jpeg, x, y, theta),
+            "pose_x, pose_y, pose_theta, depth) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (tour_id, value, seq[0][0], timestamp, v, w, width, height, jpeg, x, y, theta, ranges),
         )
 
     def image_jpeg(self, image_id: int) -> bytes:
@@ -746,6 +750,20 @@ class Repo:
                 f"SELECT id, features FROM images WHERE id IN ({marks})", chunk
             ):
                 out[image_id] = None if blob is None else bytes(blob)
+        return out
+
+    def depths(self, image_ids: Sequence[int]) -> dict[int, npt.NDArray[np.float32]]:
+        """The depth profiles the robot sent with the given images (metres, left to right;
+        images without one are left out)."""
+        out: dict[int, npt.NDArray[np.float32]] = {}
+        ids = list(image_ids)
+        for start in range(0, len(ids), 500):
+            chunk = ids[start : start + 500]
+            marks = ",".join("?" * len(chunk))
+            for image_id, blob in self._q(
+                f"SELECT id, depth FROM images WHERE id IN ({marks}) AND depth IS NOT NULL", chunk
+            ):
+                out[int(image_id)] = np.frombuffer(bytes(blob), dtype="<f4").astype(np.float32)
         return out
 
     def set_features(self, items: Sequence[tuple[int, bytes]]) -> None:
