@@ -18,9 +18,9 @@ from server.navigation.geometry import (
     wrap,
 )
 
-poses = st.tuples(
-    st.floats(-10, 10), st.floats(-10, 10), st.floats(-math.pi, math.pi)
-).map(lambda p: np.array(p))
+poses = st.tuples(st.floats(-10, 10), st.floats(-10, 10), st.floats(-math.pi, math.pi)).map(
+    lambda p: np.array(p)
+)
 
 
 def naive_dead_reckon(t: list[float], v: list[float], w: list[float]) -> np.ndarray:
@@ -44,7 +44,9 @@ def naive_dead_reckon(t: list[float], v: list[float], w: list[float]) -> np.ndar
         max_size=12,
     )
 )
-def test_dead_reckoning_matches_a_fine_euler_integration(steps: list[tuple[float, float, float]]) -> None:
+def test_dead_reckoning_matches_a_fine_euler_integration(
+    steps: list[tuple[float, float, float]],
+) -> None:
     t = [0.0]
     for dt, _, _ in steps:
         t.append(t[-1] + dt)
@@ -97,7 +99,7 @@ def test_a_turn_on_the_spot_has_no_length_and_images_there_share_a_place() -> No
     w = np.array([0.0] + [1.0] * 4 + [0.0] * 10)
     path = EdgePath.of(Edge(0, 1, tuple(range(n)), t, v, w))
     assert np.allclose(path.along[:5], 0.0)
-    pts, along, idx = path.polyline
+    _, _, idx = path.polyline
     assert idx[0] == 0 and idx[1] == 5  # the turn collapses to one point
     assert path.image_at(0.0) == 0  # the first image of the stretch
     assert math.isclose(path.heading_at(0.1), 0.8, abs_tol=1e-6)  # the way it then drove

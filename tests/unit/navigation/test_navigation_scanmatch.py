@@ -19,7 +19,9 @@ FOV = 90.0
 RAYS = 31
 
 
-def room_profile(x: float, y: float, th: float, *, walls: list[tuple[float, float, float, float]]) -> np.ndarray:
+def room_profile(
+    x: float, y: float, th: float, *, walls: list[tuple[float, float, float, float]]
+) -> np.ndarray:
     """Ranges from pose (x, y, th) to line segments ``walls`` (x0, y0, x1, y1): a ray caster."""
     half = math.radians(FOV) / 2
     out = np.full(RAYS, np.inf)
@@ -37,8 +39,12 @@ def room_profile(x: float, y: float, th: float, *, walls: list[tuple[float, floa
 
 
 WALLS = [  # a room 4 x 3 m with a cupboard
-    (0, 0, 4, 0), (4, 0, 4, 3), (4, 3, 0, 3), (0, 3, 0, 0),
-    (3.0, 2.2, 3.6, 2.2), (3.0, 2.2, 3.0, 3.0),
+    (0, 0, 4, 0),
+    (4, 0, 4, 3),
+    (4, 3, 0, 3),
+    (0, 3, 0, 0),
+    (3.0, 2.2, 3.6, 2.2),
+    (3.0, 2.2, 3.0, 3.0),
 ]
 
 
@@ -58,7 +64,7 @@ def test_the_motion_between_two_profiles_is_recovered(dx: float, dy: float, dth:
     t_prof = room_profile(*taught, walls=WALLS)
     c_prof = room_profile(*current, walls=WALLS)
     truth = relative(taught, current)
-    fit = match_profiles(t_prof, c_prof, truth + [0.1, -0.1, 0.05], fov_deg=FOV)
+    fit = match_profiles(t_prof, c_prof, truth + np.array([0.1, -0.1, 0.05]), fov_deg=FOV)
     assert fit is not None
     np.testing.assert_allclose(fit.pose, truth, atol=0.01)
     assert fit.pairs >= 10 and fit.rms_m < 0.03
@@ -85,7 +91,9 @@ def test_a_corridor_cannot_tell_how_far_along_and_says_so() -> None:
     a = np.array([0.0, 0.6, 0.0])
     b = np.array([0.3, 0.5, 0.05])
     fit = match_profiles(
-        room_profile(*a, walls=corridor), room_profile(*b, walls=corridor), relative(a, b),
+        room_profile(*a, walls=corridor),
+        room_profile(*b, walls=corridor),
+        relative(a, b),
         fov_deg=FOV,
     )
     assert fit is not None

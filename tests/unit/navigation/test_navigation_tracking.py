@@ -22,9 +22,7 @@ from server.navigation.tracking import (
 )
 
 
-@given(
-    st.floats(-0.5, 0.5), st.floats(-1.5, 1.5), st.floats(0.0, 0.5), st.floats(-3.0, 3.0)
-)
+@given(st.floats(-0.5, 0.5), st.floats(-1.5, 1.5), st.floats(0.0, 0.5), st.floats(-3.0, 3.0))
 def test_prediction_moves_by_the_odometry_and_never_grows_surer(
     v: float, w: float, dt: float, heading: float
 ) -> None:
