@@ -39,9 +39,11 @@ DEFAULT_CACHE = Path("data") / "cache" / "tours"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from robot_client.sim.check_plan import add_plan_argument
+    from robot_client.sim.generate import add_bench_arguments
     from server.tuning import add_set_argument
 
     add_plan_argument(parser, several=True)
+    add_bench_arguments(parser)
     parser.add_argument(
         "--condition",
         nargs="+",
@@ -151,6 +153,20 @@ def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
     return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)}
 
 
+def _generated_homes(args: argparse.Namespace, prog: str) -> list[tuple[Path, Any]]:
+    """``--generated K``: the homes of seeds derived from ``--seed``, written to
+    ``--generated-dir`` (robot_client.sim.generate.generated_homes); exit 2 if one fails."""
+    from robot_client.sim.generate import GenerateError, generated_homes
+
+    if not args.generated:
+        return []
+    try:
+        return generated_homes(args.generated, args.seed, args.generated_dir)
+    except (GenerateError, ValueError) as exc:
+        print(f"{prog}: --generated: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 CAUSES_ORDER = ("wrong place", "off target", "stuck", "lost", "timeout")
 
 
@@ -236,7 +252,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
-    plans = load_plans_or_exit(args.plan or [None], prog)
+    generated = _generated_homes(args, prog)
+    plan_files = [*(args.plan or []), *(path for path, _ in generated)]
+    plans = load_plans_or_exit(plan_files or [None], prog)
     conditions = list(dict.fromkeys(args.condition))
     trials = [t for t in range(args.trials) if args.only is None or t in args.only]
     specs = [TrialSpec(p, c, t) for p in range(len(plans)) for c in conditions for t in trials]
@@ -343,6 +361,11 @@ def run(args: argparse.Namespace) -> int:
         "lost: the belief not localised on half of the last 20 s; timeout: the rest",
         "pooled": pooled,
     }
+    if generated:
+        summary["generated"] = [
+            {"seed": home.seed, "file": str(path), "name": home.data["name"], "sha256": home.sha256}
+            for path, home in generated
+        ]
     if len(results) == 1:
         only = results[0]
         summary.update({k: v for k, v in only.items() if k != "rows"})
