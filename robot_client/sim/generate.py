@@ -226,10 +226,18 @@ class _Affine:
 
     def inverse(self) -> _Affine:
         (a, b), (d, e) = self.m
-        inv = ((a, d), (b, e))  # a signed permutation's inverse is its transpose
-        c = (-(inv[0][0] * self.c[0] + inv[0][1] * self.c[1]),)
-        c2 = -(inv[1][0] * self.c[0] + inv[1][1] * self.c[1])
-        return _Affine(inv, (c[0], c2))
+        inv = _Affine(((a, d), (b, e)))  # a signed permutation's inverse is its transpose
+        cx, cy = inv.point(*self.c)
+        return _Affine(inv.m, (-cx, -cy))
+
+
+def _side(r: _Rect, x: float, y: float) -> str:
+    """Which wall of the rectangle ``r`` the point ``(x, y)`` (a doorway) is on."""
+    if abs(y - r.y0) < 1e-6:
+        return "S"
+    if abs(y - r.y1) < 1e-6:
+        return "N"
+    return "W" if abs(x - r.x0) < 1e-6 else "E"
 
 
 def _angle(v: Vec) -> float:
@@ -353,6 +361,10 @@ class _Draw:
     def u(self, lo_hi: Sequence[float], step: float = 0.01) -> float:
         lo, hi = float(lo_hi[0]), float(lo_hi[1])
         return round(round(float(self.rng.uniform(lo, hi)) / step) * step, 4)
+
+    def between(self, lo: float, hi: float) -> float:
+        """Uniform in ``[lo, hi]`` (``lo`` when rounding left ``hi`` a hair below it)."""
+        return float(self.rng.uniform(lo, max(lo, hi)))
 
     def pick(self, items: Sequence[Any]) -> Any:
         return items[int(self.rng.integers(len(items)))]
@@ -560,8 +572,8 @@ class _Draw:
             raise _Reject("the rooms cannot all be joined by doors")
         for e in order:
             roles = {self.role(self.rooms[k].kind) for k in e}
-            if e in chosen or "wet" in roles:
-                continue
+            if e in chosen or "wet" in roles or not roles & {"day", "cook", "hub", "passage"}:
+                continue  # one door to a wet room; no second way between bedrooms
             common = roles in ({"day", "cook"}, {"hub", "passage"})
             rate = 0.7 if common else self.home["extra_door"]
             if self.chance(rate):
@@ -570,7 +582,7 @@ class _Draw:
             axis, at, lo, hi = shared[(i, j)]
             w = width[(i, j)]
             a, b = lo + w / 2 + 0.35, hi - w / 2 - 0.35
-            along = self.pick((a, b)) if self.chance(0.4) else float(self.rng.uniform(a, b))
+            along = self.pick((a, b)) if self.chance(0.4) else self.between(a, b)
             along = round(along / 0.05) * 0.05
             along = min(max(along, math.ceil(a / 0.05) * 0.05), math.floor(b / 0.05) * 0.05)
             x, y = (at, along) if axis == "x" else (along, at)
@@ -579,21 +591,13 @@ class _Draw:
     def doors_of(self, room: int) -> list[_Door]:
         return [d for d in self.doors if room in d.rooms]
 
-    def side_of(self, room: _Room, d: _Door) -> str:
-        r = room.rect
-        if abs(d.y - r.y0) < 1e-6:
-            return "S"
-        if abs(d.y - r.y1) < 1e-6:
-            return "N"
-        return "W" if abs(d.x - r.x0) < 1e-6 else "E"
-
     def keep_outs(self, room: _Room, doors: Sequence[_Door]) -> list[_Rect]:
         """In front of and beside each doorway of the room: no furniture (a door swings)."""
         p = self.params
         out = []
         for d in doors:
             half = d.width / 2 + p.door_side_m
-            side = self.side_of(room, d)
+            side = _side(room.rect, d.x, d.y)
             r = room.rect
             if side == "S":
                 out.append(_Rect(d.x - half, r.y0, d.x + half, r.y0 + p.door_depth_m))
@@ -768,8 +772,9 @@ class _Draw:
         movable = bool(spec.get("moves"))
 
         def piece(rect: _Rect, side: str | None, up: Vec, **kw: Any) -> _Piece:
+            size = kw.pop("sx", sx)
             return _Piece(
-                name, spec["kind"], rect, up, h, texture, sx, sy, movable=movable, side=side, **kw
+                name, spec["kind"], rect, up, h, texture, size, sy, movable=movable, side=side, **kw
             )
 
         if rule in ("wall", "corner"):
@@ -783,7 +788,7 @@ class _Draw:
             if end:
                 along = self.pick((a + sx / 2, b - sx / 2))
             else:
-                along = float(self.rng.uniform(a + sx / 2, b - sx / 2))
+                along = self.between(a + sx / 2, b - sx / 2)
             along = round(along, 2)
             normal = _NORMALS[side]
             up = (-normal[0], -normal[1]) if wall_facing else normal
@@ -796,8 +801,8 @@ class _Draw:
                 i = self._inner(zone).shrink(0.3, 0.3, 0.3, 0.3)
                 if i.w < sx or i.h < sy:
                     return None
-                x = float(self.rng.uniform(i.x0 + sx / 2, i.x1 - sx / 2))
-                y = float(self.rng.uniform(i.y0 + sy / 2, i.y1 - sy / 2))
+                x = self.between(i.x0 + sx / 2, i.x1 - sx / 2)
+                y = self.between(i.y0 + sy / 2, i.y1 - sy / 2)
                 return piece(_box(round(x, 2), round(y, 2), sx, sy), None, (0, 1))
             return None
         side, normal = anchor.side, _NORMALS[anchor.side]
@@ -817,17 +822,13 @@ class _Draw:
             )
         if rule == "on":
             if "z" in spec:  # above its whole length, against the wall (wall cabinets)
-                sx = anchor.sx
-                rect = self._against(zone, side, round(along_a, 2), sx, sy, 0.0)
-                p = piece(rect, side, normal, z=self.u(spec["z"]), rests_on=anchor.name)
-                p.sx = sx
-                return p
-            sx = min(sx, anchor.sx - 0.1)
+                rect = self._against(zone, side, round(along_a, 2), anchor.sx, sy, 0.0)
+                z = self.u(spec["z"])
+                return piece(rect, side, normal, sx=anchor.sx, z=z, rests_on=anchor.name)
+            width = min(sx, anchor.sx - 0.1)
             offset = min(0.1, max(0.0, (depth_a - sy) / 2))
-            rect = self._against(zone, side, round(along_a, 2), sx, sy, offset)
-            p = piece(rect, side, normal, z=anchor.h, rests_on=anchor.name)
-            p.sx = sx
-            return p
+            rect = self._against(zone, side, round(along_a, 2), width, sy, offset)
+            return piece(rect, side, normal, sx=width, z=anchor.h, rests_on=anchor.name)
         if rule == "rug":  # in front of the anchor
             rect = self._against(zone, side, round(along_a, 2), sx, sy, depth_a - 0.2)
             return piece(rect, None, normal)
@@ -848,8 +849,8 @@ class _Draw:
         ex, ey = (sx, sy) if along_x else (sy, sx)
         if i.w < ex or i.h < ey:
             return None
-        x = round(float(self.rng.uniform(i.x0 + ex / 2, i.x1 - ex / 2)), 2)
-        y = round(float(self.rng.uniform(i.y0 + ey / 2, i.y1 - ey / 2)), 2)
+        x = round(self.between(i.x0 + ex / 2, i.x1 - ex / 2), 2)
+        y = round(self.between(i.y0 + ey / 2, i.y1 - ey / 2), 2)
         up: Vec = (0, 1) if along_x else (1, 0)
         return _Piece(
             name,
@@ -926,11 +927,11 @@ class _Draw:
                 continue
             zone = next(z for z in room.zones if piece.rect.within(z.rect))
             inner = self._inner(zone)
+            lo, hi = self.home["moved_m"]
             for _ in range(10):
-                dist = self.u(self.home["moved_m"])
-                heading = float(self.rng.uniform(-math.pi, math.pi))
-                dx = round(dist * math.cos(heading), 2)
-                dy = round(dist * math.sin(heading), 2)
+                dx, dy = (round(float(v), 2) for v in self.rng.uniform(-hi, hi, 2))
+                if not lo <= math.hypot(dx, dy) <= hi:
+                    continue
                 turn = 0.0 if piece.kind == "plant" else self.u(self.home["moved_yaw"])
                 turn = round(turn if self.chance(0.5) else -turn, 2)
                 piece.moved = (dx, dy, turn)
@@ -1017,10 +1018,11 @@ class _Draw:
             a, b = self._along_range(zone, side)
             if b - a < width + 0.4:
                 continue
-            along = round(float(self.rng.uniform(a + width / 2 + 0.2, b - width / 2 - 0.2)), 2)
+            along = round(self.between(a + width / 2 + 0.2, b - width / 2 - 0.2), 2)
             span = (along - width / 2 - 0.1, along + width / 2 + 0.1)
             if any(
-                self._on_side(room, d) == side and _hits(span, d, side, d.width / 2) for d in doors
+                _side(room.rect, d.x, d.y) == side and _hits(span, d, side, d.width / 2)
+                for d in doors
             ):
                 continue
             behind = [
@@ -1043,9 +1045,6 @@ class _Draw:
             }[side]
             return _Picture(round(x, 3), round(y, 3), _NORMALS[side], width, height, z, texture)
         return None
-
-    def _on_side(self, room: _Room, d: _Door) -> str:
-        return self.side_of(room, d)
 
     # 6. places -----------------------------------------------------------------------------------
 
@@ -1144,7 +1143,7 @@ class _RoomView:
     def build(cls, room: _Room, doors: Sequence[_Door], params: GenerateParams) -> _RoomView | None:
         from scipy import ndimage
 
-        from robot_client.sim.floorplan import Door, FloorPlan, Furniture, Room
+        from robot_client.sim.floorplan import Door, FloorPlan, Room
         from robot_client.sim.world import PlanGeometry
 
         r = room.rect
@@ -1157,7 +1156,6 @@ class _RoomView:
             places=(),
             wall_thickness=WALL_T,
         )
-        del Furniture
         g = params.grid_m
         xs = r.x0 + (np.arange(max(1, math.ceil(r.w / g))) + 0.5) * g
         ys = r.y0 + (np.arange(max(1, math.ceil(r.h / g))) + 0.5) * g
@@ -1172,17 +1170,9 @@ class _RoomView:
             j = int(np.clip((x - r.x0) / g, 0, len(xs) - 1))
             return i, j
 
-        inside = []
+        inside = []  # a cell just inside each doorway
         for d in doors:
-            nx, ny = {"S": (0, 1), "N": (0, -1), "W": (1, 0), "E": (-1, 0)}[
-                "S"
-                if abs(d.y - r.y0) < 1e-6
-                else "N"
-                if abs(d.y - r.y1) < 1e-6
-                else "W"
-                if abs(d.x - r.x0) < 1e-6
-                else "E"
-            ]
+            nx, ny = _NORMALS[_side(r, d.x, d.y)]
             inside.append(cell(d.x + nx * 0.12, d.y + ny * 0.12))
         start = (clear["same"] >= params.start_clearance_m) & (
             clear["moved"] >= params.start_clearance_m
@@ -1564,7 +1554,14 @@ def generated_homes(
     count: int, seed: int, folder: Path, *, log: Any = print
 ) -> list[tuple[Path, GeneratedHome]]:
     """Homes ``0 .. count-1`` of ``seed`` (:func:`derived_seed`), each written to
-    ``folder/generated_<its seed>.json``."""
+    ``folder/generated_<its seed>.json``.
+
+    Raises:
+        ValueError: ``count`` is negative or above :data:`SEED_STRIDE`, or ``seed`` negative.
+        GenerateError: a seed gave no valid home.
+    """
+    if count < 0 or count > SEED_STRIDE:
+        raise ValueError(f"a run takes 0 to {SEED_STRIDE} generated homes, not {count}")
     out = []
     for k in range(count):
         home = generate_plan(derived_seed(seed, k))
