@@ -921,31 +921,36 @@ class _Draw:
         return True
 
     def _move_some(self, room: _Room, blocked: list[_Rect]) -> None:
-        """Some movable pieces get where they stand under ``moved``."""
-        for piece in room.pieces:
-            if not piece.movable or not self.chance(self.home["moved"]):
+        """Some movable pieces get where they stand under ``moved``: each at the catalogue's
+        rate, and at least one in every room that has any (as in the shipped homes)."""
+        movable = [p for p in room.pieces if p.movable]
+        order = [movable[int(k)] for k in self.rng.permutation(len(movable))]
+        chosen = [p for p in order if self.chance(self.home["moved"])]
+        for piece in chosen + [p for p in order if p not in chosen]:
+            if piece not in chosen and any(p.moved is not None for p in movable):
+                break  # the rest stay put once one has moved
+            self._move(room, piece, blocked)
+
+    def _move(self, room: _Room, piece: _Piece, blocked: list[_Rect]) -> None:
+        """Where ``piece`` stands under ``moved``: 0.2-0.6 m away, turned, clear of the rest."""
+        zone = next(z for z in room.zones if piece.rect.within(z.rect))
+        inner = self._inner(zone)
+        lo, hi = self.home["moved_m"]
+        for _ in range(10):
+            dx, dy = (round(float(v), 2) for v in self.rng.uniform(-hi, hi, 2))
+            if not lo <= math.hypot(dx, dy) <= hi:
                 continue
-            zone = next(z for z in room.zones if piece.rect.within(z.rect))
-            inner = self._inner(zone)
-            lo, hi = self.home["moved_m"]
-            for _ in range(10):
-                dx, dy = (round(float(v), 2) for v in self.rng.uniform(-hi, hi, 2))
-                if not lo <= math.hypot(dx, dy) <= hi:
+            turn = 0.0 if piece.kind == "plant" else self.u(self.home["moved_yaw"])
+            piece.moved = (dx, dy, round(turn if self.chance(0.5) else -turn, 2))
+            rect = piece.moved_rect()
+            clash = not rect.within(inner) or any(rect.overlaps(b) for b in blocked)
+            for other in room.pieces:
+                if clash or other is piece or not other.solid:
                     continue
-                turn = 0.0 if piece.kind == "plant" else self.u(self.home["moved_yaw"])
-                turn = round(turn if self.chance(0.5) else -turn, 2)
-                piece.moved = (dx, dy, turn)
-                rect = piece.moved_rect()
-                clash = not rect.within(inner) or any(rect.overlaps(b) for b in blocked)
-                for other in room.pieces:
-                    if clash or other is piece or not other.solid:
-                        continue
-                    clash = rect.overlaps(other.rect, 0.04) or rect.overlaps(
-                        other.moved_rect(), 0.04
-                    )
-                if not clash:
-                    break
-                piece.moved = None
+                clash = rect.overlaps(other.rect, 0.04) or rect.overlaps(other.moved_rect(), 0.04)
+            if not clash:
+                return
+            piece.moved = None
 
     def check_room(self, room: _Room, doors: Sequence[_Door]) -> _RoomView | None:
         """The room's clearance as taught and as moved, if every start spot is joined to its

@@ -32,7 +32,7 @@ from server.cli import main
 SEEDS = range(40)
 SHIPPED = sorted((Path(__file__).resolve().parents[3] / "robot_client" / "sim").glob("*.json"))
 
-SEED_0_SHA256 = "a17f7c96f5888ef39bc5ecd76d52d0f2643ae828581eb64f880494391cbcbc30"
+SEED_0_SHA256 = "631c7eb2ce983694d8c346ea53aa4288f703669e5f6d196a8ea86fc1e6e1319f"
 """SHA-256 of the plan of seed 0. Change it only on purpose: every seed's home changes with it,
 and figures measured on generated homes no longer describe the homes the seeds now give."""
 
@@ -101,7 +101,7 @@ def test_generated_homes_span_the_intended_variety(
     open_plan = sum(_open_plan(p) for p in plans.values())
     assert 0.1 * len(homes) <= open_plan <= 0.6 * len(homes), open_plan
     moved = [sum("moved" in f for f in h.data["furniture"]) for h in homes.values()]
-    assert sum(m > 0 for m in moved) >= 0.8 * len(homes), moved
+    assert min(moved) >= 1 and max(moved) >= 5, moved  # the `moved` condition means something
     for seed, plan in plans.items():
         per_room = Counter(place_rooms(plan).values())
         assert set(per_room) == set(range(len(plan.rooms))), seed  # a place in every room
