@@ -13,6 +13,9 @@ Per plan x condition the JSON has trials, successes, the success rate with its W
 interval, wrong arrivals, median and p90 path ratio, median time (robot seconds) and the failures
 counted by cause and by the behaviour active at the end; pooled figures follow. With one plan
 and one condition the same figures are also at the top level (the keys of earlier versions).
+
+``--generated K`` adds K generated homes (``robot_client.sim.generate``, seeds ``1000 * seed + k``)
+run exactly as plan files are; the JSON names each by seed and SHA-256 (``generated``).
 """
 
 from __future__ import annotations
@@ -25,12 +28,15 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from server.bench.common import stats, wilson_interval, write_json
 from server.bench.nav_ambiguity import localisation_summary, mcl_summary
+
+if TYPE_CHECKING:
+    from robot_client.sim.generate import GeneratedHome
 
 CONDITIONS = ("same", "lighting", "moved")
 DEFAULT_CACHE = Path("data") / "cache" / "tours"
@@ -153,7 +159,7 @@ def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
     return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)}
 
 
-def _generated_homes(args: argparse.Namespace, prog: str) -> list[tuple[Path, Any]]:
+def _generated_homes(args: argparse.Namespace, prog: str) -> list[tuple[Path, GeneratedHome]]:
     """``--generated K``: the homes of seeds derived from ``--seed``, written to
     ``--generated-dir`` (robot_client.sim.generate.generated_homes); exit 2 if one fails."""
     from robot_client.sim.generate import GenerateError, generated_homes
