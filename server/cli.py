@@ -41,6 +41,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "robot_client.sim.check_plan",
         "check a floor plan of a simulated home, print its teaching route, draw it",
     ),
+    (
+        ("sim", "generate"),
+        "robot_client.sim.generate",
+        "a random home from a seed: a floor plan that passes check-plan",
+    ),
     (("bench", "retrieval"), "server.bench.retrieval", "image retrieval on real images vs OpenCV"),
     (("bench", "localize"), "server.bench.localize", "sequence localisation on real routes"),
     (

@@ -13,6 +13,9 @@ Per plan x condition the JSON has trials, successes, the success rate with its W
 interval, wrong arrivals, median and p90 path ratio, median time (robot seconds) and the failures
 counted by cause and by the behaviour active at the end; pooled figures follow. With one plan
 and one condition the same figures are also at the top level (the keys of earlier versions).
+
+``--generated K`` adds K generated homes (``robot_client.sim.generate``, seeds ``1000 * seed + k``)
+run exactly as plan files are; the JSON names each by seed and SHA-256 (``generated``).
 """
 
 from __future__ import annotations
@@ -25,12 +28,15 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from server.bench.common import stats, wilson_interval, write_json
 from server.bench.nav_ambiguity import localisation_summary, mcl_summary
+
+if TYPE_CHECKING:
+    from robot_client.sim.generate import GeneratedHome
 
 CONDITIONS = ("same", "lighting", "moved")
 DEFAULT_CACHE = Path("data") / "cache" / "tours"
@@ -39,9 +45,11 @@ DEFAULT_CACHE = Path("data") / "cache" / "tours"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from robot_client.sim.check_plan import add_plan_argument
+    from robot_client.sim.generate import add_bench_arguments
     from server.tuning import add_set_argument
 
     add_plan_argument(parser, several=True)
+    add_bench_arguments(parser)
     parser.add_argument(
         "--condition",
         nargs="+",
@@ -149,6 +157,20 @@ def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
     overrides = {**BENCH_SERVER_SETTINGS, **dict(settings)}
     tuned(NavigationParams(), overrides)  # ValueError names what is wrong
     return {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)}
+
+
+def _generated_homes(args: argparse.Namespace, prog: str) -> list[tuple[Path, GeneratedHome]]:
+    """``--generated K``: the homes of seeds derived from ``--seed``, written to
+    ``--generated-dir`` (robot_client.sim.generate.generated_homes); exit 2 if one fails."""
+    from robot_client.sim.generate import GenerateError, generated_homes
+
+    if not args.generated:
+        return []
+    try:
+        return generated_homes(args.generated, args.seed, args.generated_dir)
+    except (GenerateError, ValueError) as exc:
+        print(f"{prog}: --generated: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 CAUSES_ORDER = ("wrong place", "off target", "stuck", "lost", "timeout")
@@ -271,7 +293,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
-    plans = load_plans_or_exit(args.plan or [None], prog)
+    generated = _generated_homes(args, prog)
+    plan_files = [*(args.plan or []), *(path for path, _ in generated)]
+    plans = load_plans_or_exit(plan_files or [None], prog)
     conditions = list(dict.fromkeys(args.condition))
     trials = [t for t in range(args.trials) if args.only is None or t in args.only]
     specs = [TrialSpec(p, c, t) for p in range(len(plans)) for c in conditions for t in trials]
@@ -378,6 +402,11 @@ def run(args: argparse.Namespace) -> int:
         "lost: the belief not localised on half of the last 20 s; timeout: the rest",
         "pooled": pooled,
     }
+    if generated:
+        summary["generated"] = [
+            {"seed": home.seed, "file": str(path), "name": home.data["name"], "sha256": home.sha256}
+            for path, home in generated
+        ]
     if len(results) == 1:
         only = results[0]
         summary.update({k: v for k, v in only.items() if k != "rows"})
