@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -171,6 +172,11 @@ class SimRos2Robot:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+    @property
+    def error(self) -> BaseException | None:
+        """What stopped the simulation thread, if something did."""
+        return self._error
 
     @property
     def running(self) -> bool:
@@ -411,11 +417,11 @@ def run(args: argparse.Namespace) -> int:
         try:
             place = plan.place(args.start)
         except KeyError as exc:
-            print(f"teachrepeat sim ros2-robot: {exc.args[0]}")
+            print(f"teachrepeat sim ros2-robot: {exc.args[0]}", file=sys.stderr)
             return 2
         start = Pose(place.x, place.y, place.yaw)
     if not 0 <= args.ros2_domain <= 232:
-        print("teachrepeat sim ros2-robot: --ros2-domain runs from 0 to 232")
+        print("teachrepeat sim ros2-robot: --ros2-domain runs from 0 to 232", file=sys.stderr)
         return 2
     sim = SimRos2Robot(
         plan,
@@ -437,4 +443,7 @@ def run(args: argparse.Namespace) -> int:
         deadline = None if args.seconds is None else time.monotonic() + args.seconds
         while sim.running and (deadline is None or time.monotonic() < deadline):
             time.sleep(0.2)
+    if sim.error is not None:
+        print(f"teachrepeat sim ros2-robot: the simulation stopped: {sim.error}", file=sys.stderr)
+        return 1
     return 0
