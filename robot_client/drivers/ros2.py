@@ -98,7 +98,7 @@ def _topic_hint(node: DdsNode, topic: str, expected: str, option: str) -> str:
 
 
 class _Latest:
-    """The newest sample of one topic, and an event set when one arrives."""
+    """An event set whenever a sample of one topic arrives (the reader keeps the newest)."""
 
     def __init__(self) -> None:
         self.event = threading.Event()
