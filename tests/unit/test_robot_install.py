@@ -36,6 +36,11 @@ SIM_SIDE = (
 SHARED = ("server.cli", "server.threads", "server.schemas", "server.imaging", "server.errors")
 """Server modules the robot side imports: the command line, the wire schemas, JPEG checks."""
 
+PLAN_DATA = ("robot_client.sim.floorplan",)
+"""Simulator modules a robot may import all the same: a floor plan's data (the standard library
+only), which the ``sim`` driver's options name (its conditions); ``robot_client.sim`` imports
+its heavy parts on first use."""
+
 HARDWARE = {"robot_client.drivers.ros2_dds": "ros2"}
 """Robot-side modules that import a driver's hardware library at import time; only a
 driver's ``open_robot`` imports them (extra they need)."""
@@ -168,7 +173,7 @@ def run_robot_side(blocked: set[str], commands: list[list[str]]) -> dict[str, ob
             "-c",
             SCRIPT,
             json.dumps(sorted(blocked)),
-            json.dumps(robot_side()),
+            json.dumps([*robot_side(), *PLAN_DATA]),
             json.dumps(commands),
         ],
         cwd=ROOT,
