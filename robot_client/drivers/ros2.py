@@ -107,12 +107,18 @@ class _Latest:
         self.event.set()
 
 
+FRAME_WAIT_S = 1.0
+"""Longest wait for each frame after the first, seconds: a camera stream that stalls makes
+:meth:`Ros2Camera.read` fail soon (the agent stands and says so) rather than hold its loop."""
+
+
 class Ros2Camera:
     """The robot's camera topic: :meth:`read` returns the newest frame that it has not
-    returned before, waiting up to ``timeout_s`` for one.
+    returned before, waiting up to ``timeout_s`` for the first one (discovery takes a moment)
+    and :data:`FRAME_WAIT_S` for each next one.
 
     Raises (from :meth:`read`):
-        DriverError: no frame for ``timeout_s`` (says what is published instead), or a frame
+        DriverError: no frame in that time (says what is published instead), or a frame
             that cannot be decoded.
     """
 
@@ -123,6 +129,7 @@ class Ros2Camera:
         self.topic = topic
         self.raw = raw
         self.struct: type[Any] = m.Image if raw else m.CompressedImage
+        self.first_timeout_s = timeout_s
         self.timeout_s = timeout_s
         self._latest = _Latest()
         self._reader: Any = node.reader(
@@ -137,9 +144,11 @@ class Ros2Camera:
             return None
         deadline = time.monotonic() + self.timeout_s
         while True:
-            samples = self._reader.take(N=1)
+            # a publisher that went away leaves an invalid sample (no data): skip it
+            samples = [s for s in self._reader.take(N=1) if isinstance(s, self.struct)]
             if samples:
                 self.frames += 1
+                self.timeout_s = min(self.first_timeout_s, FRAME_WAIT_S)
                 return self._decode(samples[-1])
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not self._latest.event.wait(remaining):
@@ -191,6 +200,7 @@ class Ros2Depth:
         self.fov_deg = fov_deg
         self.yaw_rad = yaw_rad
         self._latest = _Latest()
+        self._struct = m.LaserScan
         self._reader: Any = node.reader(
             dds_topic(topic), m.LaserScan, depth=1, on_data=self._latest.on_data
         )
@@ -204,7 +214,7 @@ class Ros2Depth:
         self.profile()
 
     def profile(self) -> npt.NDArray[np.float32]:
-        samples = self._reader.take(N=1)
+        samples = [s for s in self._reader.take(N=1) if isinstance(s, self._struct)]
         now = time.monotonic()
         if samples:
             scan = samples[-1]
@@ -278,7 +288,7 @@ class Ros2Motors:
 
     def _on_odom(self, reader: Any) -> None:
         for msg in reader.take(N=50):
-            if not hasattr(msg, "pose"):
+            if not isinstance(msg, self._m.Odometry):
                 continue  # an invalid sample (a publisher went away)
             pose = msg.pose.pose
             self.odom.add(
@@ -424,7 +434,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=5.0,
         metavar="S",
-        help="wait this long for each topic's first message, and for each next frame (default 5 s)",
+        help="wait this long for each topic's first message (default 5 s); each next frame: "
+        "at most 1 s",
     )
 
 

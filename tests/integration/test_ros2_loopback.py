@@ -278,3 +278,21 @@ def test_the_sim_command_in_another_process_is_driven_over_loopback() -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def test_a_stalled_camera_fails_a_read_within_a_second_not_the_timeout() -> None:
+    """After the first frame a read waits at most 1 s: the agent's loop stands and goes on."""
+    domain = DOMAIN + 4
+    sim = SimRos2Robot(load_plan(PLAN), domain_id=domain).start()
+    robot = driver.open_robot(ros2_args(domain, "--ros2-timeout", "5"))
+    try:
+        assert robot.camera.read() is not None
+        sim.stop()  # the stream stalls
+        t0 = time.monotonic()
+        with pytest.raises(DriverError, match="no sensor_msgs/msg/CompressedImage on /camera"):
+            for _ in range(3):  # a frame or two may still be on their way
+                robot.camera.read()
+        assert time.monotonic() - t0 < 3.5
+    finally:
+        robot.close()
+        sim.stop()
