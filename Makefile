@@ -13,7 +13,9 @@ $(STAMP): pyproject.toml scripts/setup-system.sh
 	$(VENV)/bin/pip install -q --upgrade pip
 	# OpenCV with contrib replaced opencv-python-headless: both write cv2/, never keep both
 	$(VENV)/bin/pip uninstall -y -q opencv-python-headless 2>/dev/null || true
-	$(VENV)/bin/pip install -q -e '.[dev]'
+	# every extra (server, simulator, ROS 2 and Pi drivers) and the test tools; a robot installs
+	# the client alone: pip install '.[ros2]' or '.[pi]' (docs/robot.md, "Install on the robot")
+	$(VENV)/bin/pip install -q -e '.[server,sim,ros2,pi,dev]'
 	touch $(STAMP)
 
 demo: $(STAMP)

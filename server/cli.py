@@ -46,6 +46,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "robot_client.sim.generate",
         "a random home from a seed: a floor plan that passes check-plan",
     ),
+    (
+        ("sim", "ros2-robot"),
+        "robot_client.sim.ros2_robot",
+        "the simulated robot as a ROS 2 robot on DDS: camera, odometry, scan, cmd_vel",
+    ),
     (("bench", "retrieval"), "server.bench.retrieval", "image retrieval on real images vs OpenCV"),
     (("bench", "localize"), "server.bench.localize", "sequence localisation on real routes"),
     (
@@ -79,8 +84,22 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
 )
 
 
+EXTRA_OF = {"mujoco": "sim", "skimage": "sim", "PIL": "sim", "cyclonedds": "ros2", "gpiozero": "pi"}
+"""Top-level module -> the extra of ``pyproject.toml`` that installs it (others: ``server``)."""
+
+
 def _available(module: str) -> bool:
-    return importlib.util.find_spec(module) is not None
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError as exc:  # its package is there, a dependency of the package not
+        return _missing_dependency(exc) is not None
+
+
+def _missing_dependency(exc: ModuleNotFoundError) -> str | None:
+    """The third-party module a command's import lacked, or ``None`` when the project's own
+    code is missing (a real bug: let it raise)."""
+    top = (exc.name or "").split(".")[0]
+    return None if top in ("", "server", "robot_client", "web") else top
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -102,9 +121,29 @@ def build_parser() -> argparse.ArgumentParser:
                 groups[group] = gp.add_subparsers(dest="subcommand", required=True, metavar="SUB")
             parent = groups[group]
         sub = parent.add_parser(path[-1], help=help_text, description=help_text)
-        importlib.import_module(module).add_arguments(sub)
+        try:
+            importlib.import_module(module).add_arguments(sub)
+        except ModuleNotFoundError as exc:  # a slim install (the robot's) lacks its extra
+            missing = _missing_dependency(exc)
+            if missing is None:
+                raise
+            sub.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+            sub.set_defaults(_module=module, _parser=sub, _missing=missing)
+            continue
         sub.set_defaults(_module=module, _parser=sub)
     return parser
+
+
+def _refuse_missing(args: argparse.Namespace) -> int:
+    """Say which extra a command needs on an install without it; exit status 2."""
+    extra = EXTRA_OF.get(args._missing, "server")
+    print(
+        f"{args._parser.prog}: this install lacks {args._missing}, which the command needs: "
+        f"pip install 'teachrepeat[{extra}]' (or [server,sim] for demo and the benchmarks; "
+        "docs/robot.md, 'Install on the robot')",
+        file=sys.stderr,
+    )
+    return 2
 
 
 def _exit_on_sigterm(signum: int, frame: object) -> None:
@@ -118,6 +157,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from server.threads import pin_threads
 
     args, unknown = build_parser().parse_known_args(argv)
+    if getattr(args, "_missing", None):
+        return _refuse_missing(args)
     if unknown:  # the sub-command's usage, not the top level's, says what it takes
         args._parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     # ``serve`` leaves SIGTERM to uvicorn, which shuts down gracefully and re-raises it

@@ -16,7 +16,10 @@ A driver module imports its hardware library (CycloneDDS, gpiozero, MuJoCo) insi
 
 from __future__ import annotations
 
-DRIVERS: dict[str, str] = {}
+DRIVERS: dict[str, str] = {
+    "ros2": "robot_client.drivers.ros2",
+    "pi": "robot_client.drivers.pi",
+}
 """Driver name (``--driver NAME``) -> the module that provides it."""
 
 
