@@ -34,6 +34,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "server.recording.cli",
         "a recorded navigation task through the server's step again: what differs now",
     ),
+    (
+        ("robot", "run"),
+        "robot_client.agent",
+        "the robot agent: stream frames, obey the server's commands (idle, teaching, navigating)",
+    ),
     (("robot", "teach"), "robot_client.teach", "replay a folder of images as a teaching tour"),
     (("demo",), "robot_client.demo", "the simulated home, taught and navigated end to end"),
     (

@@ -16,7 +16,9 @@ A driver module imports its hardware library (CycloneDDS, gpiozero, MuJoCo) insi
 
 from __future__ import annotations
 
-DRIVERS: dict[str, str] = {}
+DRIVERS: dict[str, str] = {
+    "sim": "robot_client.drivers.sim",
+}
 """Driver name (``--driver NAME``) -> the module that provides it."""
 
 
