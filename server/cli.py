@@ -71,6 +71,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
     (
+        ("bench", "teleop"),
+        "server.bench.teleop",
+        "driving by hand: command-to-wheel latency, and the stop when the server disappears",
+    ),
+    (
         ("bench", "questions"),
         "server.bench.questions",
         "questions while teaching in the simulated homes: asked where, revisits closed",
