@@ -494,9 +494,10 @@ def connect(
                     ) from None
                 raise AgentError(f"the server refused: {exc}") from None
         if me.kind != "robot" or me.robot is None:
+            whose = "the admin" if me.kind == "admin" else "a household login"
             raise AgentError(
-                f"this token is a {me.kind}'s, not a robot's: give the token POST /robots "
-                "answered when the robot was registered"
+                f"this token belongs to {whose}, not to a robot: give the robot's own token "
+                "(POST /robots answered it when the robot was registered)"
             )
         return client, me.robot
     except BaseException:
@@ -580,6 +581,9 @@ def run_agent(
         except KeyboardInterrupt:
             log("stopped (Ctrl-C); the robot stands")
             return 0
+        except SystemExit:  # SIGTERM (the command line turns it into SystemExit)
+            log("stopped (SIGTERM); the robot stands")
+            raise
         s = agent.stats
         log(f"stopped after {s.frames} frames ({s.late} late, {s.unreachable} unanswered)")
         return 0

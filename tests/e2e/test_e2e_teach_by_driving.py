@@ -196,10 +196,11 @@ def close_notices(page: Any) -> None:
         page.wait_for_timeout(200)
 
 
-def shot(page: Any, folder: Path, name: str, *, top: bool = False) -> None:
-    """A screenshot of the page; ``top``: with the left panel scrolled to the arrows."""
-    if top:
-        page.get_by_role("button", name="▲ Forward").scroll_into_view_if_needed()
+def shot(page: Any, folder: Path, name: str, *, show: Any = None) -> None:
+    """A screenshot of the page, with the left panel scrolled to ``show`` (a locator)."""
+    close_notices(page)
+    if show is not None:
+        show.scroll_into_view_if_needed()
     page.wait_for_timeout(700)  # the next snapshot (5 Hz) with the camera
     folder.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(folder / name))
@@ -207,11 +208,15 @@ def shot(page: Any, folder: Path, name: str, *, top: bool = False) -> None:
 
 def wait_text(page: Any, text: str, timeout_ms: float = 10_000) -> None:
     """Wait until the page shows ``text`` (its rendered text, across elements)."""
-    page.wait_for_function(
-        "t => document.body.innerText.replace(/\\s+/g, ' ').includes(t)",
-        arg=text,
-        timeout=timeout_ms,
-    )
+    try:
+        page.wait_for_function(
+            "t => document.body.innerText.replace(/\\s+/g, ' ').includes(t)",
+            arg=text,
+            timeout=timeout_ms,
+        )
+    except PlaywrightError:
+        shown = " ".join(page.locator("body").inner_text().split())
+        raise AssertionError(f"the page never showed {text!r}; it shows: {shown[:1500]}") from None
 
 
 def text_box(page: Any, label: str) -> Any:
@@ -222,6 +227,7 @@ def text_box(page: Any, label: str) -> Any:
 
 def name_place(page: Any, name: str, *, new: bool = True) -> None:
     text_box(page, "Name this place").fill(name)
+    page.wait_for_timeout(300)  # as a person moves to the button: the text reaches the server
     page.get_by_role("button", name="Mark", exact=True).click()
     wait_text(page, f"marked {'new' if new else 'known'} place {name}")
     page.evaluate("document.activeElement && document.activeElement.blur()")
@@ -278,6 +284,7 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
         mark("drove by hand")
         # 2. start teaching a new tour from the dashboard, name the place where it stands
         text_box(page, "Tour to teach").fill("home")
+        page.wait_for_timeout(300)
         page.get_by_role("button", name="Start teaching").click()
         wait_for("teaching", lambda: state().mode == "teaching", 10.0)
         name_place(page, FIRST)
@@ -287,13 +294,14 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
 
         mark("first place")
         # 3. drive to the other room with the keys, name the place there (the spin)
+        arrows = page.get_by_role("button", name="▲ Forward")
         drive_to(
             page,
             robot,
             second.x,
             second.y,
             second.yaw,
-            on_the_way=lambda: shot(page, folder, "robot_teach_drive.png", top=True),
+            on_the_way=lambda: shot(page, folder, "robot_teach_drive.png", show=arrows),
         )
         name_place(page, SECOND)
         wait_for("the spin", lambda: spin_of(state())[0] == SECOND, 5.0, seen=state)
@@ -336,7 +344,7 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
         task = state().navigation.task
         p = robot.pose
         off = math.hypot(p.x - second.x, p.y - second.y)
-        shot(page, folder, "robot_goto_arrived.png")
+        shot(page, folder, "robot_goto_arrived.png", show=page.get_by_text("arrived after").first)
     assert task is not None and task.state == "arrived", (task, ra.lines[-10:])
     assert off <= SUCCESS_RADIUS_M, (off, p)
     assert not ra.agent.stats.late or ra.agent.stats.late < 10, ra.agent.stats
