@@ -151,6 +151,7 @@ class Dashboard:
         self._layout: tuple[tuple[object, ...], GraphLayout] | None = None
         self._sent: dict[str, object] = {}
         self._step_key: tuple[object, ...] | None = None
+        self._live_map: tuple[object, ...] | None = None  # the graph the live view's map shows
         self._bound_seen: tuple[str | None, int | None] | None = None
         self._task_seen: int | None = None
         self._chosen = False  # the robot in the selector was picked by a user
@@ -627,10 +628,11 @@ class Dashboard:
         if key == self._step_key:
             return
         self._step_key = key
-        the_map = self._map(snap)
         if snap.live is not None and (step is None or graph is None or snap.teaching):
-            self._render_live(snap, the_map)
+            self._render_live(snap)
             return
+        self._live_map = None
+        the_map = self._map(snap)
         if step is None or graph is None:
             waiting = "no navigation frames yet" if snap.robot else "no robot registered"
             c.images.image = side_by_side(None, None, ("camera", "best match"))
@@ -688,11 +690,16 @@ class Dashboard:
                 c.along_edge.data = data
             c.over_time.data = over
 
-    def _render_live(self, snap: Snapshot, the_map: Any) -> None:
+    def _render_live(self, snap: Snapshot) -> None:
         """The camera outside navigation (teaching, or idle before any task): the robot's
-        latest frame and the command it was given."""
+        latest frame and the command it was given. The map (no position to show) is sent
+        again only when the graph changed, not with every frame."""
         c = self.controls
         assert c is not None and snap.live is not None
+        the_map = None
+        if self._live_map != snap.graph_key:
+            self._live_map = snap.graph_key
+            the_map = self._map(snap)
         live = snap.live
         camera = decode_rgb(live.jpeg)
         kept = "kept" if live.kept else "not kept"
@@ -711,7 +718,8 @@ class Dashboard:
         assert server is not None
         with server.atomic():
             c.images.image = images
-            c.map.image = the_map
+            if the_map is not None:
+                c.map.image = the_map
             self._put("live.strip", c.strip, "visible", False)
             self._put("live.target", c.target, "visible", False)
             self._put_markdown("action", c.action, live_text(snap))

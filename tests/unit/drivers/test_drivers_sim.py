@@ -99,7 +99,9 @@ def test_its_clock_runs_the_simulation_paced_to_the_wall_clock() -> None:
     wall = time.monotonic() - started
     assert clock.now() == pytest.approx(0.5)
     assert bot.pose.theta == pytest.approx(desk_yaw() + 0.5 - 2 * math.pi, abs=0.05)
-    assert 0.2 <= wall <= 0.4  # 0.5 simulated seconds at twice real time (the first is free)
+    # 0.5 simulated seconds at twice real time take at least 0.2 s (the first step is free);
+    # the upper bound is loose: a loaded machine may be slower than the pace, never faster
+    assert 0.2 <= wall <= 2.0, wall
 
 
 def desk_yaw() -> float:
