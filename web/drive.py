@@ -10,8 +10,9 @@ dropped connection: no more messages).
 viser has no key-up events, so the keyboard goes through the arrows: a small script (the
 inline handler of an image that fails to load, the one way viser's HTML element runs code)
 presses the arrow button of a key on key-down and releases it on key-up, and releases every
-held arrow when the page is hidden or loses focus. Keys: the arrow keys and W A S D; they
-drive only while the arrows are shown, and never while typing in a text field. The script
+held arrow (by key, mouse or finger) when the page is hidden, closed or loses focus. Keys:
+the arrow keys and W A S D; they drive only while the arrows are shown, and never while
+typing in a text field. The script
 sends nothing of its own: every command goes through viser's connection and the same checks
 as a click.
 """
@@ -62,9 +63,10 @@ def keyboard_bridge() -> str:
     """The HTML whose failing image runs the keyboard script once per page (see the module
     docstring). Constant: nothing in it comes from a user."""
     pairs = ",".join(f"{key}:'{d.label}'" for d in DIRECTIONS for key in d.keys)
+    arrows = ",".join(f"'{d.label}':1" for d in DIRECTIONS)
     script = (
         "if(!window.teachrepeatKeys){window.teachrepeatKeys=1;"
-        f"var labels={{{pairs}}};var held={{}};"
+        f"var labels={{{pairs}}};var arrows={{{arrows}}};var held={{}};var pointed=null;"
         "function find(label){var bs=document.querySelectorAll('button');"
         "for(var i=0;i<bs.length;i++){if(bs[i].textContent.trim()===label){return bs[i];}}"
         "return null;}"
@@ -74,7 +76,12 @@ def keyboard_bridge() -> str:
         "b.dispatchEvent(ev('pointerdown'));}"
         "function release(code){var b=held[code];delete held[code];if(!b){return;}"
         "b.dispatchEvent(ev('pointerup'));b.click();}"
-        "function releaseAll(){for(var code in held){release(code);}}"
+        # an arrow held with the mouse or a finger: released too when the page goes away
+        "document.addEventListener('pointerdown',function(e){var b=e.target.closest?"
+        "e.target.closest('button'):null;if(b&&arrows[b.textContent.trim()]){pointed=b;}},true);"
+        "document.addEventListener('pointerup',function(){pointed=null;},true);"
+        "function releaseAll(){for(var code in held){release(code);}"
+        "if(pointed){var b=pointed;pointed=null;b.dispatchEvent(ev('pointerup'));b.click();}}"
         "function typing(e){var t=e.target;return !!t&&(t.tagName==='INPUT'||"
         "t.tagName==='TEXTAREA'||t.tagName==='SELECT'||t.isContentEditable);}"
         "window.addEventListener('keydown',function(e){if(!(e.code in labels)||typing(e)){"

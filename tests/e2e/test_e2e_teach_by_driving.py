@@ -48,6 +48,15 @@ TURN = 0.6  # rad/s, the dashboard's turn slider as it starts
 SPEED = 0.25  # m/s, the dashboard's speed slider as it starts
 
 
+HIDE = (
+    "Object.defineProperty(document, 'hidden', {value: true, configurable: true});"
+    "document.dispatchEvent(new Event('visibilitychange'))"
+)
+"""What a browser does when its tab is hidden (headless Chromium's never is)."""
+SHOW = "delete document.hidden"
+BLUR = "window.dispatchEvent(new Event('blur'))"
+
+
 @dataclass
 class RobotAgent:
     """The agent running in a thread, and the simulated robot it drives."""
@@ -279,6 +288,23 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
         stopped_at = robot.pose.theta
         time.sleep(0.5)
         assert abs(heading_error(robot, stopped_at)) < 1e-9, "it turned on after the release"
+        # the page hidden (another tab) with an arrow held, then the window losing focus with
+        # a key held: the arrows are released and the robot stops
+        for lose, hold in ((HIDE, "mouse"), (BLUR, "key")):
+            before = robot.pose.theta
+            if hold == "mouse":
+                arrow.hover()
+                page.mouse.down()
+            else:
+                page.keyboard.down("ArrowRight")
+            wait_for("the robot to turn", lambda b=before: abs(heading_error(robot, b)) > 0.2, 5.0)
+            page.evaluate(lose)
+            wait_for(f"a stop after {hold} {lose!r}", lambda: robot._w == 0.0, 1.0, 0.01)
+            if hold == "mouse":
+                page.mouse.up()
+            else:
+                page.keyboard.up("ArrowRight")
+            page.evaluate(SHOW)
         turn_to(page, lambda: heading_error(robot, first.yaw))  # back to the place's heading
 
         mark("drove by hand")
@@ -358,3 +384,27 @@ def spin_of(state: Any) -> tuple[str | None, str | None]:
     if control is None or control.spin is None:
         return None, None
     return control.spin.place, control.spin.state
+
+
+def test_closing_the_page_while_driving_stops_the_robot(server: ServerProcess) -> None:
+    """A browser that goes away mid-drive (closed, or its connection dropped): the robot
+    stops at once when the dashboard sees the connection end, and by the hold's time-to-live
+    (0.75 s) at the latest."""
+    executable = chromium()
+    token = server.register_robot("rover")
+    assert server.dashboard_url is not None
+    with (
+        robot_agent(server.url, token) as ra,
+        headless_browser(server.dashboard_url, executable=executable) as page,
+    ):
+        robot = ra.robot
+        page.get_by_role("button", name="◀ Left").wait_for(timeout=30_000)
+        before = robot.pose.theta
+        page.keyboard.down("ArrowLeft")
+        wait_for("the robot to turn", lambda: abs(heading_error(robot, before)) > 0.2, 5.0)
+        closed = time.monotonic()
+        page.close()
+        wait_for("the wheels to stop", lambda: robot._w == 0.0, 2.0, 0.01)
+        took = time.monotonic() - closed
+        print(f"stopped {took * 1000:.0f} ms after the page closed")
+        assert took <= 0.75 + 0.3 + 0.2  # the hold's ttl, the answer's, a frame
