@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import httpx
 
 from robot_client.client import ApiError, TeachRepeatClient
-from robot_client.credentials import add_token_arguments, read_token
+from robot_client.credentials import add_pinning_arguments, add_token_arguments, read_token
 from robot_client.drivers import DRIVERS, DriverError
 from robot_client.drivers.base import Image, RobotIO
 from robot_client.drivers.watchdog import MotorWatchdog
@@ -433,8 +433,6 @@ class Agent:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from robot_client.teach import add_pinning_arguments
-
     parser.add_argument("--server", required=True, help="server URL, e.g. http://127.0.0.1:8000")
     add_token_arguments(parser)
     add_pinning_arguments(parser)

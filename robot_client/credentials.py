@@ -1,5 +1,6 @@
-"""Where a robot command reads its bearer token: a file, the environment, or (discouraged) the
-command line.
+"""Where a robot command reads its bearer token (a file, the environment, or, discouraged, the
+command line) and which server certificate it trusts (``--ca-cert``, ``--fingerprint``:
+:mod:`robot_client.pinning`).
 
 A command line is visible to every user of the machine (``ps``), so the token is best given
 as ``--token-file FILE`` (one line; a file others can read is warned about) or in the
@@ -72,4 +73,19 @@ def read_token(args: argparse.Namespace) -> str:
     raise ValueError(
         f"no robot token: give --token-file FILE or set {TOKEN_ENV} (POST /robots answers the "
         "token when the robot is registered)"
+    )
+
+
+def add_pinning_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--ca-cert FILE`` and ``--fingerprint SHA256``: pin an https:// server's certificate."""
+    parser.add_argument(
+        "--ca-cert",
+        type=Path,
+        metavar="FILE",
+        help="trust only this certificate (a copy of the server's cert.pem; https:// only)",
+    )
+    parser.add_argument(
+        "--fingerprint",
+        metavar="SHA256",
+        help="the server certificate's SHA-256 fingerprint, as `teachrepeat cert` prints it",
     )

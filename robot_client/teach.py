@@ -19,7 +19,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from robot_client.client import ApiError, TeachRepeatClient
-from robot_client.credentials import add_token_arguments, read_token
+from robot_client.credentials import add_pinning_arguments, add_token_arguments, read_token
 from robot_client.drivers.cameras import FolderCamera
 from server import schemas
 
@@ -29,21 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_token_arguments(parser)
     add_pinning_arguments(parser)
     _add_teach_arguments(parser)
-
-
-def add_pinning_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--ca-cert FILE`` and ``--fingerprint SHA256``: pin an https:// server's certificate."""
-    parser.add_argument(
-        "--ca-cert",
-        type=Path,
-        metavar="FILE",
-        help="trust only this certificate (a copy of the server's cert.pem; https:// only)",
-    )
-    parser.add_argument(
-        "--fingerprint",
-        metavar="SHA256",
-        help="the server certificate's SHA-256 fingerprint, as `teachrepeat cert` prints it",
-    )
 
 
 def _add_teach_arguments(parser: argparse.ArgumentParser) -> None:
