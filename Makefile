@@ -32,7 +32,8 @@ serve: $(STAMP)
 
 screenshot: $(STAMP)
 	DASHBOARD_SCREENSHOT=docs/img/dashboard.png TIMELINE_SCREENSHOT=docs/img/timeline.png \
-		$(VENV)/bin/pytest -q tests/e2e/test_e2e_dashboard.py tests/e2e/test_e2e_timeline.py
+		AGENT_SCREENSHOTS=docs/img $(VENV)/bin/pytest -q tests/e2e/test_e2e_dashboard.py \
+		tests/e2e/test_e2e_timeline.py tests/e2e/test_e2e_teach_by_driving.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

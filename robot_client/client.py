@@ -198,14 +198,19 @@ class TeachRepeatClient:
         depth: Sequence[float] | None = None,
         timeout: float | None = None,
         pose: Sequence[float] | None = None,
-    ) -> schemas.FrameResult | schemas.NavigationFrameResult:
+        stream: bool = False,
+    ) -> schemas.FrameResult | schemas.NavigationFrameResult | schemas.IdleFrameResult:
         """Send a frame: appended while teaching, answered with a motion command while
-        navigating (a :class:`~server.schemas.NavigationFrameResult`). ``timeout`` (s)
-        overrides the client's for this request; ``pose`` ``(x, y, theta)`` (m, m, rad) is
-        where the camera was, kept with a taught image."""
+        navigating (a :class:`~server.schemas.NavigationFrameResult`) and in every other
+        mode. ``timeout`` (s) overrides the client's for this request; ``pose``
+        ``(x, y, theta)`` (m, m, rad) is where the camera was, kept with a taught image;
+        ``stream``: the robot streams all the time and the server decides what to keep (the
+        robot agent, :class:`~server.schemas.FrameMeta`)."""
         params: dict[str, Any] = _meta(timestamp, v, w, pose)
         if depth is not None:
             params["depth"] = [wire_range(r) for r in depth]
+        if stream:
+            params["stream"] = "true"
         response = self._request(
             "POST",
             f"/robots/{robot}/frames",
@@ -237,6 +242,16 @@ class TeachRepeatClient:
 
     def stop(self, robot: str) -> schemas.TaskPublic:
         return self._call(schemas.TaskPublic, "POST", f"/robots/{robot}/stop")
+
+    def teleop(self, robot: str, v: float, w: float, *, ttl_s: float = 0.5) -> schemas.TeleopState:
+        """Drive the robot by hand at ``v`` m/s and ``w`` rad/s for ``ttl_s`` seconds (send it
+        again to keep driving; ``v = w = 0`` stops)."""
+        body = schemas.TeleopCommand(v=v, w=w, ttl_s=ttl_s).model_dump()
+        return self._call(schemas.TeleopState, "POST", f"/robots/{robot}/teleop", json=body)
+
+    def halt(self, robot: str) -> schemas.RobotState:
+        """Stop whatever the robot does (driving by hand, a spin, a navigation task)."""
+        return self._call(schemas.RobotState, "POST", f"/robots/{robot}/halt")
 
     def learn(self, robot: str) -> list[schemas.LearnedChange]:
         """Keep what the robot's last (arrived) task taught, as learned changes of its tour."""
@@ -329,9 +344,9 @@ def wire_range(r: float) -> float:
     return round(max(r, 0.0), 3)
 
 
-_FRAME_RESULT: TypeAdapter[schemas.FrameResult | schemas.NavigationFrameResult] = TypeAdapter(
-    schemas.AnyFrameResult
-)
+_FRAME_RESULT: TypeAdapter[
+    schemas.FrameResult | schemas.NavigationFrameResult | schemas.IdleFrameResult
+] = TypeAdapter(schemas.AnyFrameResult)
 
 
 def _retry_after_s(response: httpx.Response) -> float | None:

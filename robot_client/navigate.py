@@ -95,7 +95,7 @@ def drive(
             continue
         retry, retried = params.retry_s, 0.0
         if not isinstance(result, schemas.NavigationFrameResult):
-            raise ApiError(409, "the robot is teaching, not navigating", "conflict")
+            raise ApiError(409, f"the robot is {result.mode}, not navigating", "conflict")
         steps += 1
         last = result
         command = result.command

@@ -19,24 +19,19 @@ from pathlib import Path
 from tqdm import tqdm
 
 from robot_client.client import ApiError, TeachRepeatClient
+from robot_client.credentials import add_pinning_arguments, add_token_arguments, read_token
 from robot_client.drivers.cameras import FolderCamera
 from server import schemas
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--server", required=True, help="server URL, e.g. http://127.0.0.1:8000")
-    parser.add_argument("--token", required=True, help="the robot's bearer token")
-    parser.add_argument(
-        "--ca-cert",
-        type=Path,
-        metavar="FILE",
-        help="trust only this certificate (a copy of the server's cert.pem; https:// only)",
-    )
-    parser.add_argument(
-        "--fingerprint",
-        metavar="SHA256",
-        help="the server certificate's SHA-256 fingerprint, as `teachrepeat cert` prints it",
-    )
+    add_token_arguments(parser)
+    add_pinning_arguments(parser)
+    _add_teach_arguments(parser)
+
+
+def _add_teach_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tour", required=True, help="tour name (created when missing)")
     parser.add_argument("--frames", required=True, type=Path, help="folder of images, in order")
     parser.add_argument("--marks", required=True, type=Path, help="CSV: frame index, place name")
@@ -140,8 +135,9 @@ def teach_folder(
 def run(args: argparse.Namespace) -> int:
     try:
         marks = read_marks(args.marks)
+        token = read_token(args)
         with TeachRepeatClient(
-            args.server, args.token, ca_cert=args.ca_cert, fingerprint=args.fingerprint
+            args.server, token, ca_cert=args.ca_cert, fingerprint=args.fingerprint
         ) as client:
             report = teach_folder(
                 client,

@@ -23,6 +23,7 @@ from server import schemas
 from server.api.deps import PrincipalDep
 from server.api.guard import Guard
 from server.api.routes import (
+    drive,
     households,
     images,
     navigate,
@@ -40,6 +41,7 @@ from server.navigation import NavigationParams
 from server.ratelimit import RateLimiter
 from server.recording.store import Retention
 from server.services.container import Services
+from server.services.control import ControlParams
 from server.services.households import LoginParams
 from server.storage.repo import Repo
 from server.tuning import tuned
@@ -163,6 +165,9 @@ def create_app(
         ),
         shared_store=settings.worker_name is not None,  # one of several processes on the file
         wall_clock=wall_clock,
+        control=ControlParams(
+            max_v=settings.teleop_max_v, max_w=settings.teleop_max_w, spin_w=settings.spin_w
+        ),
     )
 
     @asynccontextmanager
@@ -255,7 +260,17 @@ def create_app(
             kind=principal.kind, robot=principal.robot, household=principal.household_name
         )
 
-    for module in (tours, robots, teach, navigate, questions, recordings, images, households):
+    for module in (
+        tours,
+        robots,
+        teach,
+        navigate,
+        drive,
+        questions,
+        recordings,
+        images,
+        households,
+    ):
         app.include_router(module.router, responses={"4XX": {"model": schemas.ErrorBody}})
     app.add_middleware(
         Guard,

@@ -34,6 +34,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "server.recording.cli",
         "a recorded navigation task through the server's step again: what differs now",
     ),
+    (
+        ("robot", "run"),
+        "robot_client.agent",
+        "the robot agent: stream frames, obey the server's commands (idle, teaching, navigating)",
+    ),
     (("robot", "teach"), "robot_client.teach", "replay a folder of images as a teaching tour"),
     (("demo",), "robot_client.demo", "the simulated home, taught and navigated end to end"),
     (
@@ -75,6 +80,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
+    (
+        ("bench", "teleop"),
+        "server.bench.teleop",
+        "driving by hand: command-to-wheel latency, and the stop when the server disappears",
+    ),
     (
         ("bench", "questions"),
         "server.bench.questions",

@@ -130,6 +130,26 @@ class Settings(BaseSettings):
         description="A recording takes no more frames past this size, megabytes (a task that "
         "runs for hours); it says so in its log and ends with the task.",
     )
+    teleop_max_v: float = Field(
+        default=0.3,
+        gt=0,
+        le=5.0,
+        description="Speed limit of a robot driven by hand (dashboard arrows and keys, POST "
+        "/robots/{robot}/teleop), m/s: faster commands are clamped to it.",
+    )
+    teleop_max_w: float = Field(
+        default=1.0,
+        gt=0,
+        le=20.0,
+        description="Turn-rate limit of a robot driven by hand, rad/s.",
+    )
+    spin_w: float = Field(
+        default=0.6,
+        gt=0,
+        le=20.0,
+        description="How fast a streaming robot turns at a newly named place to photograph "
+        "it, rad/s (one turn in 10.5 s at the default).",
+    )
     max_image_bytes: int = Field(
         default=4 * 1024 * 1024, gt=0, description="Largest accepted image body, bytes."
     )

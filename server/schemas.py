@@ -429,14 +429,15 @@ class FrameMeta(_Model):
         "localise the robot on a metric map as well (Monte-Carlo localisation); ignored "
         "while navigating.",
     )
-
-
-class FrameResult(_Model):
-    """A frame taken while teaching: stored on the open path."""
-
-    mode: Literal["teaching"]
-    image: ImageStored
-    open_path_images: int
+    stream: bool = Field(
+        default=False,
+        description="True from a robot that streams frames all the time and lets the server "
+        "decide what happens (the robot agent, `teachrepeat robot run`): while teaching, only "
+        "the frames taken while a person drives it are kept on the open path, and after a new "
+        "place is named the server spins the robot there and keeps the spin's frames as the "
+        "place's images. False (a client that decides itself, e.g. `robot teach`): every "
+        "frame sent while teaching is kept.",
+    )
 
 
 # --- navigation ----------------------------------------------------------------------------
@@ -471,7 +472,9 @@ class MotionCommand(_Model):
     behaviour: str = Field(
         default="stand",
         description="What the motion layer is doing: stand, follow, leave, search, explore, "
-        "unstick, backoff, escape, settle, dock or place-dock (server.navigation.BEHAVIOURS).",
+        "unstick, backoff, escape, settle, dock or place-dock (server.navigation.BEHAVIOURS); "
+        "outside navigation, teleop (a person drives it) or spin (turning once at a new "
+        "place to photograph it).",
     )
     reason: str | None = Field(
         default=None,
@@ -585,7 +588,41 @@ class NavigationFrameResult(_Model):
     )
 
 
-AnyFrameResult = Annotated[FrameResult | NavigationFrameResult, Field(discriminator="mode")]
+class FrameResult(_Model):
+    """A frame taken while teaching: kept on the open path (or, from a streaming robot, as a
+    spin image, or not kept while it stands still), with the command to obey."""
+
+    mode: Literal["teaching"]
+    image: ImageStored | None = Field(
+        default=None,
+        description="The image as stored; null when the frame was not kept (a streaming robot "
+        "standing still, or before the first place was named).",
+    )
+    open_path_images: int
+    command: MotionCommand | None = Field(
+        default=None,
+        description="What to do until the next answer: drive as a person commands (behaviour "
+        "'teleop'), spin at a new place ('spin') or stand ('stand'). Set in every answer of "
+        "POST /robots/{robot}/frames.",
+    )
+    spin_images: int | None = Field(
+        default=None,
+        description="While the server spins the robot at a new place: the place's spin images "
+        "so far (this frame included when it was kept as one).",
+    )
+
+
+class IdleFrameResult(_Model):
+    """A frame from a robot that is neither teaching nor navigating: the command to obey (a
+    person driving it, or stand)."""
+
+    mode: Literal["idle"]
+    command: MotionCommand
+
+
+AnyFrameResult = Annotated[
+    FrameResult | NavigationFrameResult | IdleFrameResult, Field(discriminator="mode")
+]
 
 
 class NavigationState(_Model):
@@ -595,11 +632,82 @@ class NavigationState(_Model):
     last_command: MotionCommand | None
 
 
+# --- driving by hand (teleop) ----------------------------------------------------------------
+
+MAX_TELEOP_TTL_S = 2.0
+"""Longest a teleop command may stay in force without being sent again, seconds."""
+
+
+class TeleopCommand(_Model):
+    """POST /robots/{robot}/teleop: drive the robot by hand (a phone, a gamepad script, the
+    dashboard's arrows). The command stays in force for ``ttl_s`` only: send it again faster
+    than that while driving, and the robot stops by itself when the sender goes quiet (a dead
+    man's switch). ``{"v": 0, "w": 0}`` stops at once. Speeds beyond the server's teleop
+    limit are clamped to it; beyond the physical bounds they are refused (422)."""
+
+    v: float = Field(
+        ge=-MAX_LINEAR_SPEED,
+        le=MAX_LINEAR_SPEED,
+        allow_inf_nan=False,
+        description="Linear velocity, m/s (forward positive).",
+    )
+    w: float = Field(
+        ge=-MAX_ANGULAR_SPEED,
+        le=MAX_ANGULAR_SPEED,
+        allow_inf_nan=False,
+        description="Angular velocity, rad/s (counter-clockwise, i.e. left, positive).",
+    )
+    ttl_s: float = Field(
+        default=0.5,
+        gt=0.0,
+        le=MAX_TELEOP_TTL_S,
+        allow_inf_nan=False,
+        description="Seconds the command stays in force unless sent again (0 < ttl_s <= 2).",
+    )
+
+
+class TeleopState(_Model):
+    """The teleop command now in force, as clamped to the server's limit."""
+
+    robot: str
+    v: float = Field(description="Linear velocity the robot is told, m/s.")
+    w: float = Field(description="Angular velocity the robot is told, rad/s.")
+    clamped: bool = Field(description="True when v or w was beyond the limit and cut to it.")
+    max_v: float = Field(description="The server's teleop limit on |v|, m/s.")
+    max_w: float = Field(description="The server's teleop limit on |w|, rad/s.")
+    ttl_s: float = Field(description="Seconds it stays in force unless sent again.")
+    mode: Literal["idle", "teaching"]
+
+
+class SpinPublic(_Model):
+    """The server spinning the robot once at a new place to photograph it."""
+
+    place: str
+    images: int = Field(description="Spin images kept so far.")
+    turned_deg: float = Field(description="How far it has turned, by its odometry, degrees.")
+    state: Literal["spinning", "done", "timeout", "stopped"] = Field(
+        description="'done': one full turn; 'timeout': it did not turn a full turn in the time "
+        "allowed (blocked, or no odometry); 'stopped': stopped on request or teaching ended."
+    )
+
+
+class RobotControlPublic(_Model):
+    """What the server tells a streaming robot outside navigation (docs/robot.md)."""
+
+    connected: bool = Field(description="A frame came within the last 2 s.")
+    last_frame_age_s: float | None = Field(description="Seconds since its last frame.")
+    teleop: TeleopState | None = Field(description="A person driving it, while in force.")
+    spin: SpinPublic | None = Field(description="The spin under way, or the last one.")
+
+
 class RobotState(_Model):
     name: str
     mode: Literal["idle", "teaching", "navigating"]
     teaching: TeachingState | None = None
     navigation: NavigationState | None = None
+    control: RobotControlPublic | None = Field(
+        default=None, description="Driving by hand and spins (robots that stream frames)."
+    )
 
 
 # --- recordings ----------------------------------------------------------------------------

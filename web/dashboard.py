@@ -15,10 +15,13 @@ texts, :mod:`web.scene` the 3D graph, :mod:`web.imagery` the images (camera tile
 strip, map), :mod:`web.timeline` the Timeline; this module wires them to the snapshots and the
 controls to the services.
 
-Controls (robot selector; goal, Record, Go, Stop; while teaching: place name, Mark, Finish,
-Abort) call the same service layer as the REST routes, so the same checks apply; a refused
-action shows its message. Every action is written to the audit log (actor ``household:NAME``,
-or ``dashboard`` for the all-households view).
+Controls (robot selector; the Drive arrows and keys, :mod:`web.drive`; goal, Record, Go,
+Stop; a tour to teach and Start teaching; while teaching: place name, Mark, Finish, Abort)
+call the same service layer as the REST routes, so the same checks apply; a refused action
+shows its message. Every action is written to the audit log (actor ``household:NAME``, or
+``dashboard`` for the all-households view); driving by hand is audited when a drive starts,
+not at every repeat of a held arrow. While the robot is not navigating, the camera shows its
+latest frame and the command it was given (teleop, spin, stand).
 
 One dashboard shows one household (``household=id``: its robots, tours and recordings only,
 and every action first checks that the robot is that household's, so a forged GUI message
@@ -38,6 +41,7 @@ inside it, and no lock is held while talking to viser.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -47,10 +51,11 @@ import viser
 from pydantic import ValidationError
 
 from server import schemas
-from server.errors import DomainError, NotFound
+from server.errors import Conflict, DomainError, NotFound
 from server.layout import GraphLayout, fine_position, graph_layout
 from server.services.learning import change_public
 from web.ambiguity import distinctiveness_text, step_lines
+from web.drive import DRIVE_HZ, HOLD_TTL_S, drive_command
 from web.imagery import (
     MAP_SIZE,
     behaviour_strip,
@@ -66,9 +71,11 @@ from web.panels import (
     action_text,
     along_edge_data,
     build_panels,
+    drive_text,
     error_text,
     inert,
     learned_text,
+    live_text,
     over_time_data,
     questions_text,
     status_text,
@@ -144,12 +151,17 @@ class Dashboard:
         self._layout: tuple[tuple[object, ...], GraphLayout] | None = None
         self._sent: dict[str, object] = {}
         self._step_key: tuple[object, ...] | None = None
+        self._live_map: tuple[object, ...] | None = None  # the graph the live view's map shows
         self._bound_seen: tuple[str | None, int | None] | None = None
         self._task_seen: int | None = None
         self._chosen = False  # the robot in the selector was picked by a user
         self._assigning = False
         self._sources_at = -1e9
         self._question: tuple[str, int] | None = None  # (robot, id) the buttons answer
+        self._drive_lock = threading.Lock()
+        self._held: dict[str, dict[str, float]] = {}  # robot -> arrow -> last hold (monotonic)
+        self._drivers: dict[str, int] = {}  # robot -> the client (browser) holding its arrows
+        self._drive_said: dict[str, str] = {}  # robot -> the last refusal shown
 
     # --- lifecycle ------------------------------------------------------------------------
 
@@ -241,12 +253,17 @@ class Dashboard:
             name = self.actor.removeprefix("household:")
             link = f" · [Log out]({self.logout})" if self.logout else ""
             line = f"Household **{name}**{link}"
-        controls = build_panels(server, household_line=line)
+        limits = self.services.control.params
+        controls = build_panels(server, household_line=line, max_v=limits.max_v, max_w=limits.max_w)
         self.timeline.build(server, controls.panel)
         controls.robot.on_update(lambda _: self._picked())
         controls.tour.on_update(lambda _: self.publisher.poke())
         controls.go.on_click(self._on_go)
         controls.stop.on_click(self._on_stop)
+        controls.teach_start.on_click(self._on_teach)
+        for name, arrow in controls.arrows.items():
+            self._bind_arrow(arrow, name)
+        server.on_client_disconnect(lambda client: self._client_gone(client.client_id))
         controls.mark.on_click(self._on_mark)
         controls.finish.on_click(self._on_finish)
         controls.abort.on_click(self._on_abort)
@@ -341,10 +358,119 @@ class Dashboard:
 
     def _on_stop(self, event: viser.GuiEvent[Any]) -> None:
         def call(robot: str) -> str:
-            task = self.services.navigation.stop(robot)
-            return f"{robot}: task {task.id} to {task.goal} {task.state}"
+            with self._drive_lock:
+                self._held.pop(robot, None)
+            stopped = self.services.control.halt(robot)
+            if not stopped:
+                raise Conflict(
+                    f"robot {robot!r} has no navigation underway; nothing to stop (nobody "
+                    "drives it and it is not turning at a place)"
+                )
+            return f"{robot}: stopped {', '.join(stopped)}"
 
         self._act(event, "Stop", call)
+
+    def _on_teach(self, event: viser.GuiEvent[Any]) -> None:
+        """Start teaching the tour named in "Tour to teach" (created when new) or, with no
+        name, the tour chosen above."""
+        c = self.controls
+        assert c is not None
+        name, chosen = c.teach_tour.value.strip(), tour_id_of(c.tour.value)
+
+        def call(robot: str) -> str:
+            household = self.services.repo.robot_household(robot)
+            if household is None:
+                raise NotFound(f"no robot named {robot!r}")
+            if name:
+                known = {t.name: t.id for t in self.services.tours.list(household)}
+                tour_id = known.get(name)
+                if tour_id is None:
+                    body = schemas.TourCreate(name=name)
+                    tour_id = self.services.tours.create(body, household).id
+            elif chosen is not None:
+                tour_id = chosen
+            else:
+                raise DomainError("name the tour to teach (a new name creates it)")
+            state = self.services.teaching.start(robot, schemas.TeachStart(tour=tour_id))
+            return (
+                f"{robot}: teaching *{state.tour_name}*: name the place where it stands, then "
+                "drive it to the next one"
+            )
+
+        self._act(event, "Start teaching", call)
+
+    # --- driving by hand (web/drive.py) -----------------------------------------------------
+
+    def _bind_arrow(self, arrow: viser.GuiButtonHandle, direction: str) -> None:
+        def hold(event: viser.GuiEvent[Any]) -> None:
+            self._on_hold(event, direction)
+
+        def release(event: viser.GuiEvent[Any]) -> None:
+            self._on_release(event, direction)
+
+        arrow.on_hold(hold, callback_hz=DRIVE_HZ)
+        arrow.on_click(release)
+
+    def _on_hold(self, event: viser.GuiEvent[Any], direction: str) -> None:
+        """An arrow is held (repeated ``DRIVE_HZ`` times a second): drive while it is."""
+        robot = self._robot()
+        if robot is None:
+            return
+        with self._drive_lock:
+            held = self._held.setdefault(robot, {})
+            held[direction] = time.monotonic()
+            if event.client_id is not None:
+                self._drivers[robot] = event.client_id
+        self._drive(event, robot)
+
+    def _on_release(self, event: viser.GuiEvent[Any], direction: str) -> None:
+        """An arrow was released (a click ends every hold): stop at once, or drive on with
+        the arrows still held."""
+        robot = self._robot()
+        if robot is None:
+            return
+        with self._drive_lock:
+            self._held.get(robot, {}).pop(direction, None)
+        self._drive(event, robot)
+
+    def _client_gone(self, client_id: int) -> None:
+        """A browser went away: the robots it was driving stop now (not after the hold's
+        time-to-live)."""
+        with self._drive_lock:
+            robots = [r for r, c in self._drivers.items() if c == client_id]
+            for robot in robots:
+                self._held.pop(robot, None)
+                self._drivers.pop(robot, None)
+        for robot in robots:
+            self._drive(None, robot)
+
+    def _drive(self, event: viser.GuiEvent[Any] | None, robot: str) -> None:
+        """Tell the control service what the held arrows say (a refusal is shown once, not at
+        every repeat)."""
+        c = self.controls
+        if c is None:
+            return
+        now = time.monotonic()
+        with self._drive_lock:
+            held = self._held.get(robot, {})
+            for name in [n for n, at in held.items() if now - at > HOLD_TTL_S]:
+                del held[name]
+            v, w = drive_command(set(held), speed=float(c.speed.value), turn=float(c.turn.value))
+        try:
+            self._check_owned(robot)
+            body = schemas.TeleopCommand(v=v, w=w, ttl_s=HOLD_TTL_S)
+            self.services.control.teleop(robot, body, actor=self.actor)
+        except (DomainError, ValidationError) as exc:
+            if v == 0 and w == 0:
+                return  # a release of a drive that was refused: nothing to say again
+            text = f"Drive refused: {error_text(exc)}"
+            if self._drive_said.get(robot) != text and event is not None:
+                self._drive_said[robot] = text
+                self._say(event, text, True)
+            return
+        self._drive_said.pop(robot, None)
+        if v == 0 and w == 0:
+            self.publisher.poke()
 
     def _on_mark(self, event: viser.GuiEvent[Any]) -> None:
         c = self.controls
@@ -459,6 +585,18 @@ class Dashboard:
         teaching = snap.teaching is not None
         for k, handle in enumerate(c.teach_inputs):
             self._put(f"teach.visible.{k}", handle, "visible", teaching)
+        for k, handle in enumerate(c.teach_starters):
+            self._put(f"teach.start.visible.{k}", handle, "visible", not teaching)
+        control = snap.control
+        spinning = (
+            control is not None and control.spin is not None and (control.spin.state == "spinning")
+        )
+        drivable = (
+            control is not None and control.connected and snap.mode != "navigating" and not spinning
+        )
+        for k, control_handle in enumerate(c.drive_inputs):
+            self._put(f"drive.visible.{k}", control_handle, "visible", drivable)
+        self._put_markdown("drive", c.drive_note, drive_text(control, snap.mode))
         scene = self._scene
         if scene is None or scene.key != snap.graph_key:
             if scene is not None:
@@ -478,15 +616,22 @@ class Dashboard:
         assert c is not None
         step, graph = snap.step, snap.graph
         task = None if snap.task is None else (snap.task.id, snap.task.state)
-        key = (
+        key: tuple[object, ...] = (
             snap.robot,
             snap.graph_key,
             task,
             None if step is None else (step.index, step.timestamp),
         )
+        live = None if snap.live is None else (snap.live.wall, snap.live.command.behaviour)
+        if step is None or snap.teaching is not None:
+            key = (*key, live)
         if key == self._step_key:
             return
         self._step_key = key
+        if snap.live is not None and (step is None or graph is None or snap.teaching):
+            self._render_live(snap)
+            return
+        self._live_map = None
         the_map = self._map(snap)
         if step is None or graph is None:
             waiting = "no navigation frames yet" if snap.robot else "no robot registered"
@@ -530,6 +675,8 @@ class Dashboard:
             c.images.image = images
             c.target.image = target_img
             c.map.image = the_map
+            self._put("live.strip", c.strip, "visible", True)
+            self._put("live.target", c.target, "visible", True)
             self._put_markdown("action", c.action, action_md)
             c.strip.image = strip
             self._put_markdown("votes", c.votes, votes_md)
@@ -542,6 +689,46 @@ class Dashboard:
                 self._put_markdown("along.label", c.along_label, f"Active path: **{title}**")
                 c.along_edge.data = data
             c.over_time.data = over
+
+    def _render_live(self, snap: Snapshot) -> None:
+        """The camera outside navigation (teaching, or idle before any task): the robot's
+        latest frame and the command it was given. The map (no position to show) is sent
+        again only when the graph changed, not with every frame."""
+        c = self.controls
+        assert c is not None and snap.live is not None
+        the_map = None
+        if self._live_map != snap.graph_key:
+            self._live_map = snap.graph_key
+            the_map = self._map(snap)
+        live = snap.live
+        camera = decode_rgb(live.jpeg)
+        kept = "kept" if live.kept else "not kept"
+        place, caption = None, "no place named yet"
+        at = None if snap.teaching is None else snap.teaching.current_location
+        if snap.teaching is None:
+            caption = "not teaching"
+        elif at is not None and snap.graph is not None:
+            views = [loc.image_ids for loc in snap.graph.locations if loc.name == at]
+            caption = f"{at}: no image yet"
+            if views and views[0]:
+                place = decode_rgb(self.publisher.image(int(views[0][0])))
+                caption = f"the path starts at {at}"
+        images = side_by_side(camera, place, (f"camera  t={live.timestamp:.1f} s, {kept}", caption))
+        server = self.server
+        assert server is not None
+        with server.atomic():
+            c.images.image = images
+            if the_map is not None:
+                c.map.image = the_map
+            self._put("live.strip", c.strip, "visible", False)
+            self._put("live.target", c.target, "visible", False)
+            self._put_markdown("action", c.action, live_text(snap))
+            self._put_markdown("votes", c.votes, "")
+            self._put_markdown(
+                "plots", c.plots_note, "*The belief plots appear with the first frame of a task.*"
+            )
+            for k, handle in enumerate(c.plots):
+                self._put(f"plots.visible.{k}", handle, "visible", False)
 
     def _map(self, snap: Snapshot) -> Any:
         """The top-down map of the snapshot's tour with the robot's most likely position."""

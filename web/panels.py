@@ -22,11 +22,12 @@ import viser.uplot
 from pydantic import ValidationError
 
 from server.errors import DomainError
+from web.drive import DIRECTIONS, keyboard_bridge
 from web.imagery import MAP_SIZE, behaviour_strip, captioned, placeholder, side_by_side
 
 if TYPE_CHECKING:
     from server.domain import TourGraph
-    from server.schemas import LearnedChange, QuestionPublic
+    from server.schemas import LearnedChange, QuestionPublic, RobotControlPublic
     from web.publisher import Snapshot, StepView
 
 FloatArray = npt.NDArray[np.float64]
@@ -52,10 +53,16 @@ class Controls:
     go: viser.GuiButtonHandle
     stop: viser.GuiButtonHandle
     teaching: viser.GuiMarkdownHandle
+    teach_tour: viser.GuiTextHandle
+    teach_start: viser.GuiButtonHandle
     place_name: viser.GuiTextHandle
     mark: viser.GuiButtonHandle
     finish: viser.GuiButtonHandle
     abort: viser.GuiButtonHandle
+    drive_note: viser.GuiMarkdownHandle
+    speed: viser.GuiSliderHandle[float]
+    turn: viser.GuiSliderHandle[float]
+    arrows: dict[str, viser.GuiButtonHandle]  # Direction.name -> its button
     map: viser.GuiImageHandle
     learned: viser.GuiMarkdownHandle
     question: viser.GuiMarkdownHandle
@@ -78,14 +85,33 @@ class Controls:
         return (self.place_name, self.mark, self.finish, self.abort)
 
     @property
+    def teach_starters(self) -> tuple[viser.GuiTextHandle | viser.GuiButtonHandle, ...]:
+        """What is shown only while the robot is not teaching."""
+        return (self.teach_tour, self.teach_start)
+
+    @property
+    def drive_inputs(self) -> tuple[viser.GuiSliderHandle[float] | viser.GuiButtonHandle, ...]:
+        """What is shown only while the robot can be driven by hand (connected, and not
+        navigating)."""
+        return (self.speed, self.turn, *self.arrows.values())
+
+    @property
     def plots(self) -> tuple[viser.GuiMarkdownHandle | viser.GuiUplotHandle, ...]:
         """What is shown only once the robot has navigation frames."""
         return (self.along_label, self.along_edge, self.over_time)
 
 
-def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Controls:
-    """Lay out the dashboard's GUI: theme, grid, the left panel (robot, goal, teaching, map)
-    and the right one (camera and belief); ``household_line``: a markdown line on top."""
+def build_panels(
+    server: viser.ViserServer,
+    *,
+    household_line: str | None,
+    max_v: float = 0.3,
+    max_w: float = 1.0,
+) -> Controls:
+    """Lay out the dashboard's GUI: theme, grid, the left panel (robot, driving, goal,
+    teaching, map) and the right one (camera and belief); ``household_line``: a markdown line
+    on top; ``max_v`` (m/s) and ``max_w`` (rad/s): the server's speed limit for driving by
+    hand (the sliders' ends)."""
     gui = server.gui
     gui.configure_theme(
         control_width="large",
@@ -112,6 +138,7 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
     if household_line is not None:
         gui.add_markdown(household_line)
     message = gui.add_markdown("")
+    gui.add_html(keyboard_bridge())  # the keys hold the arrows (web/drive.py)
     gui.add_markdown(
         "Places are spheres, taught paths lines; colour and size show the belief "
         "(slate 0, blue, amber, red 1). The ring is the most likely position."
@@ -119,6 +146,34 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
     with gui.add_folder("Robot"):
         robot = gui.add_dropdown("Robot", (NONE,), hint="The robot shown and controlled")
         status = gui.add_markdown("*waiting for the first snapshot...*")
+    with gui.add_folder("Drive"):
+        drive_note = gui.add_markdown(drive_text(None, None))
+        speed = gui.add_slider(
+            "Speed (m/s)",
+            min=0.05,
+            max=round(max_v, 2),
+            step=0.05,
+            initial_value=round(min(0.25, max_v), 2),
+            hint="Forward and back speed while an arrow is held (the server's limit at the end)",
+            visible=False,
+        )
+        turn = gui.add_slider(
+            "Turn (rad/s)",
+            min=0.1,
+            max=round(max_w, 2),
+            step=0.1,
+            initial_value=round(min(0.6, max_w), 2),
+            hint="Turn rate while an arrow is held",
+            visible=False,
+        )
+        arrows = {
+            d.name: gui.add_button(
+                d.label,
+                hint=f"Hold to drive ({' or '.join(key_name(k) for k in d.keys)}); release to stop",
+                visible=False,
+            )
+            for d in DIRECTIONS
+        }
     with gui.add_folder("Go to a place"):
         tour = gui.add_dropdown("Tour", (NONE,), hint="The tour whose places are listed")
         goal = gui.add_dropdown("Goal", (NONE,), hint="Where the robot should go")
@@ -126,9 +181,22 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
             "Record", False, hint="Record the task to an MCAP file (Timeline tab, Foxglove)"
         )
         go = gui.add_button("Go", color="blue", hint="POST /robots/{robot}/goto")
-        stop = gui.add_button("Stop", color="red", hint="POST /robots/{robot}/stop")
+        stop = gui.add_button(
+            "Stop",
+            color="red",
+            hint="Stop whatever the robot does: a task, a spin, driving (POST .../halt)",
+        )
     with gui.add_folder("Teach"):
         teaching = gui.add_markdown("")
+        teach_tour = gui.add_text(
+            "Tour to teach",
+            "",
+            hint="A new name creates the tour; an existing one adds to it; empty: the tour "
+            "chosen above",
+        )
+        teach_start = gui.add_button(
+            "Start teaching", color="green", hint="POST /robots/{robot}/teach/start"
+        )
         place_name = gui.add_text("Name this place", "", hint="e.g. kitchen", visible=False)
         mark = gui.add_button("Mark", hint="POST /robots/{robot}/teach/locations", visible=False)
         finish = gui.add_button(
@@ -192,10 +260,16 @@ def build_panels(server: viser.ViserServer, *, household_line: str | None) -> Co
         go=go,
         stop=stop,
         teaching=teaching,
+        teach_tour=teach_tour,
+        teach_start=teach_start,
         place_name=place_name,
         mark=mark,
         finish=finish,
         abort=abort,
+        drive_note=drive_note,
+        speed=speed,
+        turn=turn,
+        arrows=arrows,
         map=the_map,
         learned=learned,
         question=question,
@@ -299,15 +373,67 @@ def status_text(snap: Snapshot) -> str:
 def teaching_text(snap: Snapshot) -> str:
     t = snap.teaching
     if t is None:
-        robot = snap.robot or "{robot}"
         return (
-            f"Not teaching. Teaching starts from the robot (`POST /robots/{robot}/teach/start`"
-            "); then name each place here as the robot reaches it."
+            "Not teaching. Name a tour (or choose one above) and press **Start teaching**; "
+            "then drive the robot and name each place where it stands."
         )
-    at = f"at **{t.current_location}**" if t.current_location else "no place marked yet"
-    return (
+    at = f"at **{t.current_location}**" if t.current_location else "no place named yet"
+    lines = [
         f"Teaching *{t.tour_name}*: {at}; **{t.open_path_images}** images on the open path; "
         f"{t.locations} places and {t.edges} paths so far."
+    ]
+    spin = None if snap.control is None else snap.control.spin
+    if spin is not None and spin.state == "spinning":
+        lines.append(
+            f"Turning at **{spin.place}** to photograph it: {spin.turned_deg:.0f} of 360 "
+            f"degrees, {spin.images} images."
+        )
+    elif spin is not None:
+        how = {"done": "spun", "timeout": "spin timed out", "stopped": "spin stopped"}
+        lines.append(f"{how.get(spin.state, spin.state)} at {spin.place}: {spin.images} images.")
+    if t.current_location is None:
+        lines.append("Name the place where the robot stands to begin.")
+    elif t.open_path_images:
+        lines.append("Name the place where the robot stands now, or drive on.")
+    return "\n\n".join(lines)
+
+
+def key_name(code: str) -> str:
+    """A key as people name it: ``ArrowUp`` -> ``↑``, ``KeyW`` -> ``W``."""
+    arrows = {"ArrowUp": "↑", "ArrowDown": "↓", "ArrowLeft": "←", "ArrowRight": "→"}
+    return arrows.get(code, code.removeprefix("Key"))
+
+
+def drive_text(control: RobotControlPublic | None, mode: str | None) -> str:
+    """How to drive the selected robot, or why it cannot be driven now."""
+    if control is None or not control.connected:
+        return (
+            "*The robot sends no frames:* start its agent (`teachrepeat robot run`) to drive "
+            "it from here."
+        )
+    if mode == "navigating":
+        return "Navigating: press **Stop** to drive it by hand."
+    spin = control.spin
+    if spin is not None and spin.state == "spinning":
+        return f"Turning at **{spin.place}** to photograph it; the arrows wait."
+    keys = "arrow keys or W A S D"
+    line = f"Hold an arrow (or the {keys}) to drive; release to stop."
+    t = control.teleop
+    if t is not None:
+        line += f" Driving: v {t.v:.2f} m/s, w {t.w:.2f} rad/s."
+    return line
+
+
+def live_text(snap: Snapshot) -> str:
+    """What the robot was told with its latest frame (outside navigation)."""
+    live = snap.live
+    if live is None:
+        return "*no frames from the robot yet*"
+    c = live.command
+    why = f"\n\nWhy: {c.reason}" if c.reason else ""
+    return (
+        f"**Command: {c.behaviour}** - v {c.v:.2f} m/s, w {c.w:.2f} rad/s "
+        f"(for {c.ttl_s:.2f} s){why}"
     )
 
 

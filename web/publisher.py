@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from server.belief.mcl import MclEstimate
     from server.domain import TourGraph
     from server.services.container import Services
+    from server.services.control import LiveFrame
     from server.session import RobotSession, Segment, StepRecord
 
 FloatArray = npt.NDArray[np.float64]
@@ -118,6 +119,8 @@ class Snapshot:
     history_entropy: FloatArray = field(default_factory=lambda: np.zeros(0))  # nats
     timeline: tuple[Segment, ...] = ()  # the current task's behaviours over time
     activity: tuple[tuple[str, str], ...] = ()  # (robot, "navigating to kitchen") of busy robots
+    live: LiveFrame | None = None  # the robot's latest frame and the command it got
+    control: schemas.RobotControlPublic | None = None  # driving by hand, spins, connection
 
 
 Selection = Callable[[], tuple[str | None, int | None]]
@@ -285,6 +288,8 @@ class Publisher:
             graph_key=graph_key,
             teaching=teaching,
             activity=self._activity,
+            live=None if robot is None else self.services.control.live(robot),
+            control=None if robot is None else self.services.control.public(robot),
         )
         if session is None or teaching_row is not None:
             return snap
@@ -338,6 +343,8 @@ class Publisher:
             history_entropy=hist_h,
             timeline=_copy_timeline(session),
             activity=snap.activity,
+            live=snap.live,
+            control=snap.control,
         )
 
     def _tour_of(self, session: RobotSession) -> int | None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 DRIVERS: dict[str, str] = {
     "ros2": "robot_client.drivers.ros2",
     "pi": "robot_client.drivers.pi",
+    "sim": "robot_client.drivers.sim",
 }
 """Driver name (``--driver NAME``) -> the module that provides it."""
 

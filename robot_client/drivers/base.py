@@ -75,13 +75,19 @@ class Clock(Protocol):
 class RobotIO:
     """One robot's devices as the robot agent drives them: what a driver module's
     ``open_robot(args)`` returns (see :mod:`robot_client.drivers`). ``depth`` is ``None`` on a
-    robot without a depth sensor; ``close`` releases everything (safe to call twice)."""
+    robot without a depth sensor; ``close`` releases everything (safe to call twice).
+
+    ``simulated``: the clock is a simulator's, whose time stands still between the loop's
+    steps; the agent then keeps each command's time-to-live in that time itself. A wall-clock
+    robot (False, every real one) has its motors guarded by a
+    :class:`~robot_client.drivers.watchdog.MotorWatchdog` instead."""
 
     camera: Camera
     motors: Motors
     clock: Clock
     depth: DepthSensor | None = None
     closers: list[Callable[[], None]] = field(default_factory=list)
+    simulated: bool = False
 
     def close(self) -> None:
         """Stop the motors, then release every device in the reverse order of opening."""

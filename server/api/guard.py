@@ -25,9 +25,11 @@ Send = Callable[[Message], Awaitable[None]]
 ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 
 AUDITED_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
-NOT_AUDITED_SUFFIXES = ("/frames", "/teach/spin")
+NOT_AUDITED_SUFFIXES = ("/frames", "/teach/spin", "/teleop")
 """Camera frames and spin images: the data stream itself, 10 per second per robot, not a
-decision anyone makes; the calls around them (teach start, marks, goto, stop) are audited."""
+decision anyone makes; the calls around them (teach start, marks, goto, stop) are audited.
+Teleop commands are repeated ~10 times a second while a key is held: the start of each drive
+is audited by the service (``teleop start``), not every repeat."""
 
 
 def bearer_token(scope: Scope) -> str | None:

@@ -13,6 +13,7 @@ from server.imaging import ImageLimits
 from server.navigation import NavigationParams
 from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
+from server.services.control import ControlParams, ControlService
 from server.services.households import HouseholdService, Identities, LoginParams
 from server.services.junctions import JunctionService
 from server.services.learning import LearningService
@@ -38,6 +39,7 @@ class Services:
     learning: LearningService
     junctions: JunctionService
     questions: QuestionService
+    control: ControlService
 
     @classmethod
     def build(
@@ -54,11 +56,13 @@ class Services:
         retention: Retention | None = None,
         shared_store: bool = False,
         wall_clock: Callable[[], float] = time.time,
+        control: ControlParams | None = None,
     ) -> Services:
         """``recordings``: the folder of the recordings (created on first use);
         ``record_all``: record every teaching tour and navigation task; ``shared_store``: other
         server processes write to the same database (:class:`NavigationService`);
-        ``wall_clock``: unix seconds, when questions are asked and expire."""
+        ``wall_clock``: unix seconds, when questions are asked and expire; ``control``: how
+        streaming robots are driven outside navigation (:class:`ControlParams`)."""
         teaching = TeachingService(repo, limits)
         nav = NavigationService(
             repo,
@@ -86,6 +90,8 @@ class Services:
         nav.observers.append(questions)
         teaching.observers.append(questions)
         identities = Identities(repo)
+        driving = ControlService(repo, teaching, nav, limits, control)
+        teaching.observers.append(driving)
         return cls(
             repo=repo,
             admin_token=admin_token,
@@ -100,13 +106,13 @@ class Services:
             learning=learning,
             junctions=JunctionService(repo, nav, nav.params.learning.junctions),
             questions=questions,
+            control=driving,
         )
 
     def frame(self, robot: str, data: bytes, meta: schemas.FrameMeta) -> schemas.AnyFrameResult:
-        """A robot's frame: appended while teaching, answered with a command while navigating."""
-        if self.repo.teaching(robot) is not None:
-            return self.teaching.frame(robot, data, meta)
-        return self.navigation.frame(robot, data, meta)
+        """A robot's frame, answered with the command to obey in every mode: kept while
+        teaching, stepped while navigating (:meth:`ControlService.frame`)."""
+        return self.control.frame(robot, data, meta)
 
     def robot_state(self, robot: str) -> schemas.RobotState:
         teaching = self.teaching.state(robot)
@@ -114,7 +120,13 @@ class Services:
         mode: Literal["idle", "teaching", "navigating"] = "teaching" if teaching else "idle"
         if navigation and navigation.task and navigation.task.state == "underway":
             mode = "navigating"
-        return schemas.RobotState(name=robot, mode=mode, teaching=teaching, navigation=navigation)
+        return schemas.RobotState(
+            name=robot,
+            mode=mode,
+            teaching=teaching,
+            navigation=navigation,
+            control=self.control.public(robot),
+        )
 
     def close(self) -> None:
         self.recordings.close()
