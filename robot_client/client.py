@@ -310,12 +310,18 @@ class TeachRepeatClient:
         v: float = 0.0,
         w: float = 0.0,
         pose: Sequence[float] | None = None,
+        depth: Sequence[float] | None = None,
     ) -> schemas.ImageStored:
+        """A spin image of the current place, with the robot's odometry and, when it has a
+        depth sensor, its depth profile (metres, left to right)."""
+        params = _meta(timestamp, v, w, pose)
+        if depth is not None:
+            params["depth"] = [wire_range(r) for r in depth]
         return self._call(
             schemas.ImageStored,
             "POST",
             f"/robots/{robot}/teach/spin",
-            params=_meta(timestamp, v, w, pose),
+            params=params,
             content=jpeg,
             headers={"Content-Type": "image/jpeg"},
         )

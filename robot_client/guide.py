@@ -160,7 +160,7 @@ def upload_tour(
             # it could know, its frames and odometry
             if item.kind == "spin":
                 client.upload_spin_image(
-                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w
+                    robot_name, item.jpeg, timestamp=item.t, v=item.v, w=item.w, depth=item.depth
                 )
                 label = f"spin {item.place}"
             else:

@@ -1,9 +1,10 @@
 """The taught paths laid out in the plane: where every place and every taught image is drawn.
 
-From the taught odometry when every path has it (unicycle dead reckoning of the (v, w) recorded
-with each image, chained from the first place), else a seeded networkx layout with straight
-paths. Used by the dashboard's 3D scene and top-down map and by the recordings' Foxglove scene.
-Pure: NumPy and networkx.
+From the taught odometry when every path has it (the paths dead-reckoned as the path tracker
+has them, :mod:`server.navigation.geometry`, chained from the first place), else a seeded
+networkx layout with straight paths. Used by the dashboard's 3D scene and top-down map and by
+the recordings' Foxglove scene; :func:`tracked_position` puts the path tracker's estimate on
+the drawing. Pure: NumPy and networkx.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.domain import Edge, TourGraph
+from server.navigation.geometry import dead_reckon
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -53,29 +55,24 @@ def integrate_edge(edge: Edge) -> FloatArray:
     """``(n_images + 2, 3)`` poses ``(x, y, heading)`` along an edge in its start frame:
     the source place, every image, then the target place.
 
-    Unicycle dead reckoning over the edge's timestamps with the (v, w) recorded at each
-    image; the places are one median frame interval before the first / after the last image.
+    The images dead-reckoned from the taught odometry as the path tracker has them
+    (:func:`server.navigation.geometry.dead_reckon`); the places one median frame interval
+    before the first image and after the last, at the speed taught there.
     """
     t = np.asarray(edge.timestamps, dtype=np.float64)
     n = len(t)
     if n == 0:
         return np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
     dt0 = float(np.median(np.diff(t))) if n > 1 else 0.1
-    times = np.concatenate([[t[0] - dt0], t, [t[-1] + dt0]])
-    v = np.asarray(edge.v, dtype=np.float64)
-    w = np.asarray(edge.w, dtype=np.float64)
-    v = np.concatenate([[v[0]], v, [v[-1]]])
-    w = np.concatenate([[w[0]], w, [w[-1]]])
-    poses = np.zeros((n + 2, 3))
-    for k in range(1, n + 2):
-        dt = max(0.0, times[k] - times[k - 1])
-        x, y, th = poses[k - 1]
-        mid = th + 0.5 * w[k - 1] * dt
-        poses[k] = (
-            x + v[k - 1] * math.cos(mid) * dt,
-            y + v[k - 1] * math.sin(mid) * dt,
-            th + w[k - 1] * dt,
-        )
+    images = dead_reckon(t, edge.v, edge.w)
+    v = np.abs(np.asarray(edge.v, dtype=np.float64))
+    step_in = float(v[1] if n > 1 else v[0]) * dt0
+    step_out = float(v[-1]) * dt0
+    first, last = images[0], images[-1]
+    before = first - step_in * np.array([math.cos(first[2]), math.sin(first[2]), 0.0])
+    after = last + step_out * np.array([math.cos(last[2]), math.sin(last[2]), 0.0])
+    poses = np.vstack([before, images, after])
+    poses[:, :2] -= before[:2]
     return poses
 
 
@@ -275,3 +272,28 @@ def fine_position(layout: GraphLayout, graph: TourGraph, fine: int) -> FloatArra
     k = flat - int(graph.edge_offsets[edge])
     pts = layout.edge_points[edge]
     return None if k >= len(pts) else np.asarray(pts[k], dtype=np.float64)
+
+
+def tracked_position(
+    layout: GraphLayout, graph: TourGraph, edge: int, index: int, lateral_m: float
+) -> FloatArray | None:
+    """Where the path tracker's estimate is drawn: image ``index`` of ``edge`` on the layout,
+    moved ``lateral_m`` to the left of the drawn path (scaled as the drawing is); ``None``
+    when the edge has no drawn images."""
+    pts = layout.edge_points[edge]
+    if len(pts) == 0:
+        return None
+    k = int(np.clip(index, 0, len(pts) - 1))
+    ahead, behind = pts[min(k + 3, len(pts) - 1)], pts[max(k - 3, 0)]
+    d = np.asarray(ahead - behind, dtype=np.float64)[:2]
+    length = float(np.hypot(*d))
+    at = np.asarray(pts[k], dtype=np.float64).copy()
+    if length < 1e-9:
+        return at
+    along = graph.edges[edge].metres_along()
+    taught = float(along[-1]) if len(along) else 0.0
+    drawn = float(np.sum(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1)))
+    scale = drawn / taught if taught > 1e-9 else 1.0
+    normal = np.array([-d[1], d[0]]) / length
+    at[:2] += lateral_m * scale * normal
+    return at

@@ -14,6 +14,7 @@ import numpy.typing as npt
 
 from server.belief.mcl import MclEstimate
 from server.domain import TourGraph
+from server.navigation.pathtrack import PathEstimate
 
 FloatArray = npt.NDArray[np.float64]
 ColorArray = npt.NDArray[np.uint8]
@@ -110,15 +111,32 @@ def pose_text(estimate: MclEstimate | None) -> str:
     )
 
 
+def path_text(est: PathEstimate, graph: TourGraph) -> str:
+    """Markdown line of the path tracker's estimate: which path, where along and beside it,
+    how sure, and whether it steers by it."""
+    name = graph.state_name(graph.n_locations + est.edge) if est.edge < graph.n_edges else "?"
+    how = "locked: following it" if est.locked else "not sure enough to steer by"
+    return (
+        f"On the taught path {name}: {est.along_m:.2f} of {est.length_m:.2f} m along, "
+        f"{est.lateral_m:+.2f} m to its side (sd {est.sigma_lateral:.2f} m), heading "
+        f"{math.degrees(est.heading_error):+.0f} deg (sd {math.degrees(est.sigma_heading):.0f}); "
+        f"{how}"
+    )
+
+
 def step_lines(
     hypotheses: tuple[tuple[int, float], ...],
     separating: bool,
     estimate: MclEstimate | None,
     graph: TourGraph,
+    path: PathEstimate | None = None,
 ) -> str:
-    """The markdown a navigating step adds: the disambiguation (when the belief is split) and
-    the metric pose (when Monte-Carlo localisation runs); empty otherwise."""
+    """The markdown a navigating step adds: the disambiguation (when the belief is split), the
+    metric pose (when Monte-Carlo localisation runs) and the pose relative to the taught path
+    (while the path tracker tracks one); empty otherwise."""
     lines = [disambiguation_text(hypotheses, separating, graph)]
     if estimate is not None:
         lines.append(pose_text(estimate))
+    if path is not None:
+        lines.append(path_text(path, graph))
     return "".join(f"\n\n{line}" for line in lines if line)

@@ -52,12 +52,13 @@ from pydantic import ValidationError
 
 from server import schemas
 from server.errors import Conflict, DomainError, NotFound
-from server.layout import GraphLayout, fine_position, graph_layout
+from server.layout import GraphLayout, fine_position, graph_layout, tracked_position
 from server.services.learning import change_public
 from web.ambiguity import distinctiveness_text, step_lines
 from web.drive import DRIVE_HZ, HOLD_TTL_S, drive_command
 from web.imagery import (
     MAP_SIZE,
+    Tracked,
     behaviour_strip,
     captioned,
     decode_rgb,
@@ -661,7 +662,7 @@ class Dashboard:
         images = side_by_side(camera, best, (f"camera  t={step.timestamp:.1f} s", best_caption))
         target_img = captioned(target, target_caption, height=120)
         action_md = action_text(step, graph) + step_lines(
-            step.hypotheses, step.separating, step.mcl, graph
+            step.hypotheses, step.separating, step.mcl, graph, step.path
         )
         votes_md = votes_text(step.votes)
         along = along_edge_data(step, graph)
@@ -743,7 +744,20 @@ class Dashboard:
             position = fine_position(layout, graph, int(step.fine_belief.argmax()))
         goal = None if snap.task is None or snap.task.state != "underway" else snap.task.goal
         metric = None if step is None else step.mcl
-        return top_down(graph, layout, states=states, position=position, goal=goal, metric=metric)
+        tracked = None
+        if step is not None and step.path is not None and step.path.edge < graph.n_edges:
+            est = step.path
+            at = tracked_position(layout, graph, est.edge, est.index, est.lateral_m)
+            tracked = Tracked(est.edge, at, est.sigma_lateral, est.locked)
+        return top_down(
+            graph,
+            layout,
+            states=states,
+            position=position,
+            goal=goal,
+            metric=metric,
+            tracked=tracked,
+        )
 
     def _graph_layout(self, key: tuple[object, ...], graph: TourGraph) -> GraphLayout:
         if self._scene is not None and self._scene.key == key and self._scene.layout is not None:

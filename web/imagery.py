@@ -7,6 +7,7 @@ Pure drawing (NumPy and OpenCV) on RGB ``(h, w, 3)`` uint8 images; no viser.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import cv2
@@ -210,13 +211,16 @@ def top_down(
     goal: str | None = None,
     size: tuple[int, int] = MAP_SIZE,
     metric: MclEstimate | None = None,
+    tracked: Tracked | None = None,
 ) -> ImageArray:
     """The taught paths seen from above (layout metres), each place named, paths and places
     coloured by their belief ``states`` (``(n_states,)`` b(s), optional), the robot's most
     likely ``position`` (a layout point) as a red dot, the ``trail`` of earlier positions
     (``(k, 2+)``) as a line, and the ``goal`` place ringed in green. ``metric``: Monte-Carlo
     localisation's pose (a layout drawn from the taught poses is in its frame) as a blue
-    arrow in a circle of its spread, over its particles."""
+    arrow in a circle of its spread, over its particles. ``tracked``: the path being tracked
+    (topometric repeat), drawn thick, and the robot on it where the tracker puts it, with a
+    circle of its lateral uncertainty (teal while locked, amber while not)."""
     w, h = size
     img = np.full((h, w, 3), _MAP_BG, dtype=np.uint8)
     if graph.n_locations == 0:
@@ -231,6 +235,11 @@ def top_down(
             _PATH_GREY if colours is None else tuple(int(c) for c in colours[graph.n_locations + j])
         )
         cv2.polylines(img, [frame.px(np.asarray(pts))], False, colour, 2, cv2.LINE_AA)
+    if tracked is not None:
+        j = tracked.edge
+        pts = [layout.places[graph.edges[j].source], *layout.edge_points[j]]
+        pts.append(layout.places[graph.edges[j].target])
+        cv2.polylines(img, [frame.px(np.asarray(pts))], False, _TRACKED, 5, cv2.LINE_AA)
     if trail is not None and len(np.asarray(trail)) > 1:
         cv2.polylines(img, [frame.px(np.asarray(trail))], False, _TRAIL, 2, cv2.LINE_AA)
     radius = 6
@@ -247,7 +256,29 @@ def top_down(
         cv2.circle(img, (int(c[0]), int(c[1])), radius, _ROBOT, -1, cv2.LINE_AA)
     if metric is not None and layout.odometry:
         _draw_metric(img, frame, metric)
+    if tracked is not None and tracked.position is not None:
+        colour = _TRACKED if tracked.locked else _UNSURE
+        c = frame.px(np.asarray(tracked.position))
+        ring = int(np.clip(round(2 * tracked.sigma_m * frame.scale), 4, img.shape[0] // 2))
+        cv2.circle(img, (int(c[0]), int(c[1])), ring, colour, 2, cv2.LINE_AA)
+        cv2.circle(img, (int(c[0]), int(c[1])), 3, colour, -1, cv2.LINE_AA)
     return img
+
+
+_TRACKED = (13, 148, 136)
+_UNSURE = (217, 119, 6)
+
+
+@dataclass(frozen=True)
+class Tracked:
+    """The path tracker on the map: the ``edge`` tracked, the robot's layout ``position``
+    there (``None``: not drawable), its lateral standard deviation ``sigma_m`` (metres) and
+    whether the tracker is ``locked``."""
+
+    edge: int
+    position: npt.ArrayLike | None
+    sigma_m: float
+    locked: bool
 
 
 _METRIC = (37, 99, 235)

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from server import schemas
     from server.belief.mcl import MclEstimate
     from server.domain import TourGraph
+    from server.navigation.pathtrack import PathEstimate
     from server.services.container import Services
     from server.services.control import LiveFrame
     from server.session import RobotSession, Segment, StepRecord
@@ -79,6 +80,7 @@ class StepView:
     hypotheses: tuple[tuple[int, float], ...] = ()  # separated hypotheses (disambiguation)
     separating: bool = False  # the action was chosen to tell them apart
     mcl: MclEstimate | None = None  # Monte-Carlo localisation's pose (docs/ambiguity.md)
+    path: PathEstimate | None = None  # the pose relative to the taught path being tracked
 
 
 @dataclass(frozen=True)
@@ -489,4 +491,5 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         hypotheses=() if decision is None else decision.hypotheses,
         separating=False if decision is None else decision.separating,
         mcl=record.mcl,
+        path=record.path,
     )

@@ -20,16 +20,22 @@ The arbiter asks :meth:`place` among the motion behaviours and :meth:`confirm` l
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
+from server.navigation.behaviours import track_command
 from server.navigation.command import Command, Proposal
+from server.navigation.geometry import inverse, relative
 from server.navigation.observation import Observation, ViewRequest, Views
 from server.navigation.params import NavigationParams
+from server.navigation.pursuit import pursue
 from server.navigation.runtime import TourRuntime
+from server.navigation.scanmatch import ScanFit, match_profiles_robust
+from server.navigation.tracking import move
 from server.vision.homing import ScaleResult
 
 
@@ -38,6 +44,89 @@ def top_spins(rt: TourRuntime, obs: Observation, location: int, most: int = 3) -
     spins = rt.spin_images[location]
     ranked = spins[np.argsort(-obs.similarity.image[spins], kind="stable")[:most]]
     return [int(i) for i in ranked]
+
+
+SPOT_M = 0.08
+"""Within this of a place's taught spot (by the depth profiles) the robot stands on it, m."""
+
+
+def spot_by_scan(
+    rt: TourRuntime, obs: Observation, location: int
+) -> npt.NDArray[np.float64] | None:
+    """Where ``location``'s taught spot is, in the robot's frame (``(2,)`` metres, x ahead, y
+    left), from the frame's depth profile aligned with those taught with the place's spin
+    images (all taken on the spot; the three the engine ranks highest for this frame are
+    tried, from starts up to 1.2 m around it: :func:`match_profiles_robust`); ``None`` without
+    a depth profile, without taught ones, or when none aligns well (fewer than 10 points
+    agreeing, or more than 5 cm apart on average)."""
+    tp = rt.params.topometric
+    if obs.depth is None or not tp.enabled or not tp.scan:
+        return None
+    best: ScanFit | None = None
+    for image in top_spins(rt, obs, location):
+        taught = rt.taught_depth.get(image)
+        if taught is None:
+            continue
+        fit = match_profiles_robust(
+            taught,
+            obs.depth,
+            np.zeros(3),
+            fov_deg=tp.depth_fov_deg,
+            params=tp.scan_fit,
+            lateral_m=(0.0, 0.6, -0.6, 1.2, -1.2),
+            along_m=(0.0, 0.6, -0.6),
+            turns_rad=(0.0,),
+        )
+        if fit is not None and (
+            best is None or fit.rms_m + 0.5 / fit.pairs < best.rms_m + 0.5 / best.pairs
+        ):
+            best = fit
+    if best is None or best.pairs < 10 or best.rms_m > 0.05:
+        return None
+    # the robot's pose in the spin image's frame (whose origin is the spot): the spot seen
+    # from the robot
+    spot = inverse(best.pose)
+    return np.asarray(spot[:2], dtype=np.float64)
+
+
+class SpotFix:
+    """A place's taught spot as the depth profiles place it, kept between frames: each
+    frame's estimate (:func:`spot_by_scan`) is carried to the next by the robot's odometry,
+    and the spot counts as found only when two estimates in a row agree within ``agree_m``
+    (a place's spin profiles can align wrongly, one frame here, the next there: the robot
+    turned back and forth in a hall so)."""
+
+    agree_m = 0.25
+
+    def __init__(self) -> None:
+        self.spot: npt.NDArray[np.float64] | None = None  # robot frame, last frame
+
+    def reset(self) -> None:
+        self.spot = None
+
+    def update(
+        self, rt: TourRuntime, obs: Observation, location: int
+    ) -> npt.NDArray[np.float64] | None:
+        """The spot in the robot's frame when this frame's estimate agrees with the last
+        one's (carried by the odometry), else ``None`` (it remembers this one)."""
+        previous = self.spot
+        if previous is not None:  # where the last estimate lies after the robot's motion
+            moved = move(np.zeros(3), obs.v, obs.w, obs.dt)
+            previous = relative(moved, np.array([previous[0], previous[1], 0.0]))[:2]
+        found = spot_by_scan(rt, obs, location)
+        self.spot = found
+        if found is None or previous is None:
+            return None
+        return found if float(np.hypot(*(found - previous))) <= self.agree_m else None
+
+
+def toward_spot(spot: npt.NDArray[np.float64], rt: TourRuntime) -> tuple[float, float]:
+    """``(v, w)`` driving to ``spot`` (robot frame), slowly (``MotionParams.dock_v``, turning
+    to face it first when it lies far to the side or behind)."""
+    tp = rt.params.topometric
+    slow = replace(tp.pursuit, speed=max(rt.params.motion.dock_v, tp.pursuit.min_v))
+    distance = float(np.hypot(*spot))
+    return pursue(np.zeros(3), spot, params=slow, remaining_m=distance)
 
 
 def best_fit(
@@ -85,9 +174,13 @@ class Approach:
     log_scales: list[float] = field(default_factory=list)  # docking's last few log scales
 
 
+SCAN_MISSES = 5
+"""Frames in a row docking by depth may find no spot before the views' scale takes over."""
+
+
 @dataclass
 class PlaceDocking:
-    """Docking on the goal's spin images: the phase (idle, look, creep, turn, done, off), axes
+    """Docking on the goal's spin images: the phase (idle, look, scan, creep, turn, done, off), axes
     docked, the spin image docked on, radians turned and metres crept (as commanded) in this
     phase, the last few log scales on this axis, radians turned with the belief off the goal,
     and whether this is the second axis of docking along an edge."""
@@ -100,6 +193,7 @@ class PlaceDocking:
     log_scales: list[float] = field(default_factory=list)
     away_rad: float = 0.0
     second_axis: bool = False
+    scan_misses: int = 0
 
     def start(self, phase: str) -> None:
         self.phase, self.rad, self.m = phase, 0.0, 0.0
@@ -118,6 +212,7 @@ class Docking:
         self.needs_approach = self.p.approach_s > 0 and runtime.approachable[goal]
         self.approach = Approach(done=not self.needs_approach)
         self.placing = PlaceDocking()
+        self.spot = SpotFix()  # the goal's taught spot by the depth profiles
         self._engaged = False
 
     # -- views -------------------------------------------------------------------------------
@@ -146,7 +241,7 @@ class Docking:
         if self.p.place_dock and pl.phase == "creep":
             return ViewRequest(zoomed=frozenset({int(pl.target if pl.target is not None else 0)}))
         zoomed: set[int] = set()
-        if (self.p.place_dock and pl.phase in ("look", "turn", "creep")) or (
+        if (self.p.place_dock and pl.phase in ("look", "scan", "turn", "creep")) or (
             pl.phase == "idle" and obs.at_goal
         ):
             zoomed.update(self._spins(obs))
@@ -196,6 +291,9 @@ class Docking:
         if not self._placing(obs):
             return None
         self._engaged = True  # turning on the spot on purpose is not being stuck
+        scanned = self._scan_dock(obs)
+        if scanned is not None:
+            return scanned
         if pl.phase == "turn":
             if pl.rad < np.pi / 2:
                 return self._turn("turning a quarter turn to dock a second axis")
@@ -205,6 +303,31 @@ class Docking:
             if looked is not None or pl.phase == "off":
                 return looked
         return self._creep(obs)
+
+    def _scan_dock(self, obs: Observation) -> Proposal | None:
+        """Dock on the goal's taught spot by the depth profiles (:func:`spot_by_scan`): drive
+        to it and stand there (docked: the approach is done). ``None`` when the profiles
+        cannot tell (no depth, nothing aligns): the views' scale docks instead."""
+        pl = self.placing
+        if pl.phase not in ("look", "scan"):
+            return None
+        spot = self.spot.update(self.rt, obs, self.goal)
+        if spot is None:
+            if pl.phase == "scan":
+                pl.scan_misses += 1
+                if pl.scan_misses <= SCAN_MISSES:  # a frame that cannot tell: hold still
+                    hold = Command(0.0, 0.0, Action.do_nothing(), None, "place-dock")
+                    return Proposal(hold, "the depth profile says nothing this frame")
+                pl.start("look")
+            return None
+        pl.phase, pl.scan_misses = "scan", 0
+        if float(np.hypot(*spot)) <= SPOT_M:
+            pl.phase = "done"
+            self.approach.done, self.approach.edge = True, None
+            return Proposal(Command(0.0, 0.0, Action.do_nothing()), "on the taught spot (depth)")
+        v, w = toward_spot(spot, self.rt)
+        command = Command(v, w, Action.do_nothing(), None, "place-dock")
+        return Proposal(command, f"to the taught spot {float(np.hypot(*spot)):.2f} m away (depth)")
 
     def _placing(self, obs: Observation) -> bool:
         """Whether place docking goes on (or starts) this frame: off when it is switched off,
@@ -332,9 +455,16 @@ class Docking:
             return None, False
         if not p.dock or a.edge is None or self.placing.second_axis:
             return None, True  # (the second axis ends in place docking's own verdict)
-        if self._tracked_there(obs, a.edge):
+        est = obs.path
+        if est is not None and est.locked and est.edge == a.edge:
+            # the path tracker knows where the robot is on the way in: it follows the path to
+            # its end and faces the way taught; the robot is there when the tracker says so
             a.log_scales.clear()
-            return None, True
+            if self._tracked_there(obs, a.edge):
+                return None, True
+            command, why = track_command(self.rt, obs, est)
+            docking = Command(command.v, command.w, command.action, command.target_image, "dock")
+            return Proposal(docking, f"on to the taught spot: {why}"), False
         if a.log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             a.dock_m += mp.dock_v * obs.dt

@@ -430,7 +430,7 @@ class PathTracker:
                     params=p.scan_fit,
                     lateral_m=p.join_lateral_m,
                 )
-            if fit is not None and (best is None or _better(fit, best[0])):
+            if fit is not None and (best is None or fit.score < best[0].score):
                 best = (fit, pose_k)
         if best is None:
             return 0
@@ -512,9 +512,3 @@ class PathTracker:
         if len(self.trace) < 2 or self.edge is None or self.trace[0].edge != self.edge:
             return []
         return [tp.pose for tp in reversed(self.trace)]
-
-
-def _better(a: ScanFit, b: ScanFit) -> bool:
-    """Whether scan fit ``a`` beats ``b`` (a smaller residual, a fraction of a pair counting
-    against few pairs, as :func:`~server.navigation.scanmatch.match_profiles_robust` ranks)."""
-    return a.rms_m + 0.5 / a.pairs < b.rms_m + 0.5 / b.pairs

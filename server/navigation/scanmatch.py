@@ -65,6 +65,12 @@ class ScanFit:
     pairs: int
     rms_m: float
 
+    @property
+    def score(self) -> float:
+        """Lower is better: the residual, with a fraction of a pair counting against fits
+        that rest on few points."""
+        return self.rms_m + 0.5 / self.pairs
+
 
 def profile_points(
     ranges: npt.ArrayLike, fov_deg: float, params: ScanParams = ScanParams()
@@ -113,41 +119,77 @@ def match_profiles(
     """Align the ``current`` profile with the ``taught`` one, starting from ``guess`` (the
     current robot's pose in the taught robot's frame, ``(3,)``); ``None`` when too few points
     agree."""
+    fits = match_profiles_batch(
+        taught,
+        current,
+        np.asarray(guess, dtype=np.float64)[None, :],
+        fov_deg=fov_deg,
+        params=params,
+    )
+    return fits[0]
+
+
+def match_profiles_batch(
+    taught: npt.ArrayLike,
+    current: npt.ArrayLike,
+    guesses: npt.ArrayLike,
+    *,
+    fov_deg: float,
+    params: ScanParams = ScanParams(),
+) -> list[ScanFit | None]:
+    """:func:`match_profiles` from every start of ``guesses`` ``(S, 3)`` at once (the same
+    iterations over ``(S, n, m)`` arrays): one fit per start, ``None`` where too few points
+    agree."""
     T = profile_points(taught, fov_deg, params)
     C = profile_points(current, fov_deg, params)
+    starts = np.atleast_2d(np.asarray(guesses, dtype=np.float64))
+    S = len(starts)
     if len(T) < params.min_points or len(C) < params.min_points:
-        return None
+        return [None] * S
     N, has_normal = surface_normals(T, params)
-    pose = np.asarray(guess, dtype=np.float64).copy()
-    H = np.eye(3)
-    r = np.zeros(0)
-    used = 0
+    pose = starts.copy()
+    alive = np.ones(S, dtype=bool)
+    H = np.tile(np.eye(3), (S, 1, 1))
+    r = np.zeros((S, len(C)))
+    use = np.zeros((S, len(C)), dtype=bool)
     for it in range(params.iterations):
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        world = C @ np.array([[c, s], [-s, c]]) + pose[:2]
-        dist = np.linalg.norm(world[:, None, :] - T[None, :, :], axis=2)
-        j = dist.argmin(axis=1)
-        near = dist[np.arange(len(C)), j]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        wx = c[:, None] * C[None, :, 0] - s[:, None] * C[None, :, 1] + pose[:, 0:1]
+        wy = s[:, None] * C[None, :, 0] + c[:, None] * C[None, :, 1] + pose[:, 1:2]
+        world = np.stack([wx, wy], axis=2)  # (S, n, 2)
+        d2 = (wx[..., None] - T[:, 0]) ** 2 + (wy[..., None] - T[:, 1]) ** 2  # (S, n, m)
+        j = d2.argmin(axis=2)
+        near2 = np.take_along_axis(d2, j[..., None], axis=2)[..., 0]
         frac = it / max(params.iterations - 1, 1)
         limit = params.start_pair_m * (params.end_pair_m / params.start_pair_m) ** frac
-        use = (near < limit) & has_normal[j]
-        used = int(use.sum())
-        if used < params.min_points:
-            return None
-        n, p, q = N[j[use]], world[use], T[j[use]]
-        r = np.einsum("ij,ij->i", p - q, n)
-        rel = p - pose[:2]
-        J = np.stack([n[:, 0], n[:, 1], rel[:, 0] * n[:, 1] - rel[:, 1] * n[:, 0]], axis=1)
-        H = J.T @ J + 1e-9 * np.eye(3)
-        step = -np.linalg.solve(H, J.T @ r)
+        use = (near2 < limit * limit) & has_normal[j]
+        alive &= use.sum(axis=1) >= params.min_points
+        if not alive.any():
+            return [None] * S
+        n, q = N[j], T[j]  # (S, n, 2)
+        r = np.where(use, np.einsum("snk,snk->sn", world - q, n), 0.0)
+        rel = world - pose[:, None, :2]
+        J = np.stack([n[..., 0], n[..., 1], rel[..., 0] * n[..., 1] - rel[..., 1] * n[..., 0]], 2)
+        J = np.where(use[..., None], J, 0.0)
+        H = np.einsum("sni,snj->sij", J, J) + 1e-9 * np.eye(3)
+        g = np.einsum("sni,sn->si", J, r)
+        step = -np.linalg.solve(H, g[..., None])[..., 0]
+        step = np.where(alive[:, None], step, 0.0)
         pose += step
-        if np.linalg.norm(step[:2]) < 1e-4 and abs(step[2]) < 1e-4:
+        if np.all((np.linalg.norm(step[:, :2], axis=1) < 1e-4) & (np.abs(step[:, 2]) < 1e-4)):
             break
-    rms = float(np.sqrt(np.mean(r**2))) if len(r) else math.inf
-    sigma2 = max(rms, params.sigma_m) ** 2
-    cov = sigma2 * np.linalg.inv(H)
-    pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
-    return ScanFit(pose=pose, cov=0.5 * (cov + cov.T), pairs=used, rms_m=rms)
+    pairs = use.sum(axis=1)
+    out: list[ScanFit | None] = []
+    for k in range(S):
+        if not alive[k] or pairs[k] < params.min_points:
+            out.append(None)
+            continue
+        rms = float(np.sqrt(np.sum(r[k] ** 2) / pairs[k]))
+        cov = max(rms, params.sigma_m) ** 2 * np.linalg.inv(H[k])
+        p = pose[k].copy()
+        p[2] = math.atan2(math.sin(p[2]), math.cos(p[2]))
+        out.append(ScanFit(pose=p, cov=0.5 * (cov + cov.T), pairs=int(pairs[k]), rms_m=rms))
+    return out
 
 
 def match_profiles_robust(
@@ -158,22 +200,53 @@ def match_profiles_robust(
     fov_deg: float,
     params: ScanParams = ScanParams(),
     lateral_m: tuple[float, ...] = (0.0, 0.5, -0.5, 1.0, -1.0),
+    along_m: tuple[float, ...] = (0.0,),
     turns_rad: tuple[float, ...] = (0.0, 0.25, -0.25),
 ) -> ScanFit | None:
     """:func:`match_profiles` from several starts around ``guess`` (shifted sideways by
-    ``lateral_m`` and turned by ``turns_rad``): the fit with the smallest residual (a
-    fraction of a pair counts against few pairs). For a guess that may be far off (joining a
-    path); one start suffices while the estimate is good."""
+    ``lateral_m``, along by ``along_m`` and turned by ``turns_rad``), all at once
+    (:func:`match_profiles_batch`): the fit with the smallest residual, a fraction of a pair
+    counting against few pairs. For a guess that may be far off (joining a path, docking on a
+    place); one start suffices while the estimate is good."""
+    fits = match_profiles_starts(
+        taught,
+        current,
+        guess,
+        fov_deg=fov_deg,
+        params=params,
+        lateral_m=lateral_m,
+        along_m=along_m,
+        turns_rad=turns_rad,
+    )
+    return fits[0] if fits else None
+
+
+def match_profiles_starts(
+    taught: npt.ArrayLike,
+    current: npt.ArrayLike,
+    guess: npt.ArrayLike,
+    *,
+    fov_deg: float,
+    params: ScanParams = ScanParams(),
+    lateral_m: tuple[float, ...] = (0.0, 0.5, -0.5, 1.0, -1.0),
+    along_m: tuple[float, ...] = (0.0,),
+    turns_rad: tuple[float, ...] = (0.0, 0.25, -0.25),
+) -> list[ScanFit]:
+    """Every fit :func:`match_profiles_robust` finds from its starts, best first (the runners
+    up say whether the best is the only good alignment)."""
     base = np.asarray(guess, dtype=np.float64)
     c, s = math.cos(base[2]), math.sin(base[2])
-    best: tuple[float, ScanFit] | None = None
-    for dy in lateral_m:
-        for dth in turns_rad:
-            start = base + np.array([-s * dy, c * dy, dth])
-            fit = match_profiles(taught, current, start, fov_deg=fov_deg, params=params)
-            if fit is None:
-                continue
-            score = fit.rms_m + 0.5 / fit.pairs
-            if best is None or score < best[0]:
-                best = (score, fit)
-    return None if best is None else best[1]
+    starts = np.array(
+        [
+            base + np.array([c * dx - s * dy, s * dx + c * dy, dth])
+            for dy in lateral_m
+            for dx in along_m
+            for dth in turns_rad
+        ]
+    )
+    fits = [
+        f
+        for f in match_profiles_batch(taught, current, starts, fov_deg=fov_deg, params=params)
+        if f is not None
+    ]
+    return sorted(fits, key=lambda f: f.score)

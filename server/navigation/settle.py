@@ -20,7 +20,14 @@ from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
 from server.navigation.behaviours import DepartureRuns
 from server.navigation.command import Command, Proposal
-from server.navigation.docking import look_fit, scale_verdict, top_spins
+from server.navigation.docking import (
+    SPOT_M,
+    SpotFix,
+    look_fit,
+    scale_verdict,
+    top_spins,
+    toward_spot,
+)
 from server.navigation.observation import Observation, ViewRequest
 from server.navigation.runtime import TourRuntime
 
@@ -55,6 +62,7 @@ class Settle:
         self.m = 0.0  # crept while settling (as commanded)
         self.off = 0  # frames in a row with the belief elsewhere
         self.log_scales: list[float] = []
+        self.spot = SpotFix()  # the place's taught spot by the depth profiles
         self._engaged = False
 
     def _due(self, obs: Observation) -> int | None:
@@ -90,6 +98,7 @@ class Settle:
             if place is None:
                 return None
             self.place, self.phase, self.target = place, "look", None
+            self.spot.reset()
             self.rad = self.m = 0.0
             self.off = 0
             self.log_scales.clear()
@@ -110,6 +119,13 @@ class Settle:
         self.off = 0 if obs.summary.map_state == place else self.off + 1
         if self.off > OFF_PLACE_FRAMES:
             return None
+        spot = self.spot.update(self.rt, obs, place)
+        if spot is not None:  # the depth profiles tell where the spot is: go there
+            distance = float(np.hypot(*spot))
+            if distance <= SPOT_M:
+                return None  # on the spot: search from here
+            v, w = toward_spot(spot, self.rt)
+            return self._say(Command(v, w, Action.do_nothing()), f"{distance:.2f} m away (depth)")
         if self.phase == "look":
             target, fit = look_fit(obs.views, top_spins(self.rt, obs, place), p)
             seen = fit is not None and fit.inliers >= p.dock_min_inliers

@@ -1,0 +1,128 @@
+"""The path tracker on synthetic observations: a room drawn as walls, depth profiles ray-cast
+from the taught and the true poses, odometry with noise, no camera features (the depth
+profiles alone). It joins the taught path from beside it and keeps the robot on it; across a
+place it carries its estimate into the next edge."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from test_navigation_scanmatch import room_profile
+
+from server.belief.model import Action
+from server.domain import Edge
+from server.navigation.geometry import EdgePath, compose, relative
+from server.navigation.pathtrack import PathTracker, TopometricParams
+from server.navigation.pursuit import lookahead_point, pursue
+from server.navigation.tracking import move
+from server.policy.voting import Decision
+from server.vision.features import FeatureParams, ImageFeatures
+
+WALLS = [  # a 6 m x 3 m room with a cupboard and a table
+    (0, 0, 6, 0),
+    (6, 0, 6, 3),
+    (6, 3, 0, 3),
+    (0, 3, 0, 0),
+    (4.5, 2.2, 5.5, 2.2),
+    (4.5, 2.2, 4.5, 3.0),
+    (2.0, 0.0, 2.0, 0.5),
+    (2.0, 0.5, 2.6, 0.5),
+]
+NO_FEATURES = ImageFeatures(
+    keypoints=np.zeros((0, 2), np.float32),
+    descriptors=np.zeros((0, FeatureParams().descriptor_bytes), np.uint8),
+    signature=np.zeros(0, np.float32),
+)
+
+
+def taught_edge(start: np.ndarray, n: int = 80) -> tuple[EdgePath, list[np.ndarray]]:
+    """A straight taught edge of ``n`` images 0.05 m apart from world pose ``start``, and the
+    depth profile taught with each image."""
+    edge = Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
+    path = EdgePath.of(edge)
+    depths = [room_profile(*compose(start, pose), walls=WALLS) for pose in path.poses]
+    return path, depths
+
+
+def run(
+    offset: float, heading: float, steps: int = 200, seed: int = 0
+) -> list[tuple[float, float, bool]]:
+    """Drive by the tracker's estimate from ``offset`` m beside the start of the taught edge;
+    (true lateral, estimated lateral, locked) after every step."""
+    rng = np.random.default_rng(seed)
+    start = np.array([0.6, 1.5, 0.0])  # the taught edge runs along the room's middle
+    path, depths = taught_edge(start)
+    params = TopometricParams()
+    tracker = PathTracker(
+        (path,), (NO_FEATURES,) * path.n_images, np.array([0]), params, depth=lambda k: depths[k]
+    )
+    truth = compose(start, np.array([0.3, offset, heading]))
+    decision = Decision(Action.navigate(0), 1, {}, 0)
+    v = w = 0.0
+    out = []
+    for step in range(steps):
+        # the robot executes last frame's command with 3 % noise; odometry reports it with 5 %
+        real_v, real_w = v * (1 + rng.normal(0, 0.03)), w * (1 + rng.normal(0, 0.03))
+        truth = move(truth, real_v, real_w, 0.1)
+        odo_v, odo_w = real_v * (1 + rng.normal(0, 0.05)), real_w * (1 + rng.normal(0, 0.05))
+        depth = room_profile(*truth, walls=WALLS) + rng.normal(0, 0.01, 31)
+        est = tracker.step(
+            NO_FEATURES,
+            t=0.1 * step,
+            v=odo_v,
+            w=odo_w,
+            dt=0.1 if step else 0.0,
+            decision=decision,
+            along_belief=6,  # the belief: near the start (a weak hint)
+            depth=depth,
+        )
+        assert est is not None
+        true_lateral = float(relative(start, truth)[1])
+        out.append((true_lateral, est.lateral_m, est.locked))
+        if est.remaining_m < 0.3:
+            break
+        if est.locked:
+            target = lookahead_point(path, est.along_m, est.lateral_m, params.pursuit)
+            v, w = pursue(est.pose, target, params=params.pursuit, remaining_m=est.remaining_m)
+        else:
+            v, w = 0.0, 0.0
+    return out
+
+
+def test_from_beside_the_path_it_locks_on_and_brings_the_robot_onto_it() -> None:
+    for offset, heading in ((0.8, 0.2), (-0.5, -0.3), (0.0, 0.0)):
+        trace = run(offset, heading)
+        first_lock = next(k for k, (_, _, locked) in enumerate(trace) if locked)
+        assert first_lock < 15  # locked within 1.5 s of robot time
+        locked = [(t, e) for t, e, lk in trace if lk]
+        errors = np.abs([t - e for t, e in locked])
+        assert np.median(errors) < 0.05 and errors.max() < 0.2  # the estimate against the truth
+        assert abs(trace[-1][0]) < 0.1  # on the path by the end
+        assert len(trace) < 200  # reached the end
+
+
+def test_a_tracker_carries_its_estimate_across_a_place_into_the_next_edge() -> None:
+    first, _ = taught_edge(np.array([0.6, 1.5, 0.0]), n=20)  # 0.95 m
+    # the next edge starts where the first ended, turned a quarter turn to the left
+    second = EdgePath.of(
+        Edge(1, 2, tuple(range(20)), np.arange(20) * 0.2, np.full(20, 0.25), np.zeros(20))
+    )
+    tracker = PathTracker(
+        (first, second),
+        (NO_FEATURES,) * 40,
+        np.array([0, 20]),
+        TopometricParams(),
+        link=lambda e_in, e_out: -math.pi / 2,  # the first's last image, in the next's frame
+        edge_ends=((0, 1), (1, 2)),
+    )
+    tracker.edge, tracker.mean = 0, np.array([0.9, 0.1, 0.0])
+    tracker.cov = np.diag([0.01**2] * 3)
+    tracker.estimate = tracker._estimate(0.0, 0)
+    rotate = Decision(Action.rotate(1), None, {}, None)
+    est = tracker.step(NO_FEATURES, t=0.1, v=0.0, w=0.0, dt=0.1, decision=rotate, along_belief=None)
+    assert est is not None and est.edge == 1
+    # 0.05 m short of the first edge's end and 0.1 m to its left, facing along it; the first
+    # edge runs at -90 degrees in the next one's frame: 0.1 m ahead of the next edge's start
+    # and 0.05 m to its left, facing -90 degrees
+    np.testing.assert_allclose(est.pose, [0.1, 0.05, -math.pi / 2], atol=1e-6)

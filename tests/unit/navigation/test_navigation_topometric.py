@@ -1,0 +1,137 @@
+"""Topometric repeat's behaviours on synthetic observations: following the taught path by the
+pose relative to it, facing the goal's taught heading, retracing, and the policy's vote taken
+at the tracked image."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from navigation_testkit import B, observation, runtime
+
+from server.belief.model import Action, ActionKind
+from server.navigation.behaviours import FindEdge, Follow, Retrace
+from server.navigation.observation import committed
+from server.navigation.pathtrack import PathEstimate
+from server.navigation.runtime import TourRuntime
+
+
+def estimate(
+    rt: TourRuntime,
+    *,
+    edge: int = 0,
+    along: float = 0.5,
+    lateral: float = 0.0,
+    heading: float = 0.0,
+    locked: bool = True,
+    since_fix_s: float = 0.0,
+) -> PathEstimate:
+    """The tracker's estimate on ``edge`` (the synthetic edges run straight along +x)."""
+    path = rt.paths[edge]
+    k = path.image_at(along)
+    return PathEstimate(
+        edge=edge,
+        pose=np.array([along, lateral, heading]),
+        cov=np.diag([0.02**2, 0.02**2, 0.01**2]),
+        along_m=along,
+        lateral_m=lateral,
+        heading_error=heading,
+        sigma_lateral=0.02,
+        sigma_along=0.02,
+        sigma_heading=0.01,
+        locked=locked,
+        fixes=2,
+        image=rt.edge_image(edge, k),
+        index=k,
+        length_m=path.length,
+        since_fix_s=since_fix_s,
+    )
+
+
+def test_a_locked_tracker_follows_the_path_back_from_its_side() -> None:
+    rt = runtime()
+    obs = observation(rt, action=Action.navigate(0), active_edge=0, goal=B)
+    beside = replace(obs, path=estimate(rt, lateral=0.3))
+    proposal = Follow(rt).propose(beside)
+    assert proposal is not None and "tracking the path" in proposal.reason
+    c = proposal.command
+    assert c.behaviour == "follow" and c.action == Action.navigate(0)
+    assert c.v > 0 and c.w < 0  # 0.3 m to the left of the path: steers right, back onto it
+    # not locked: homing as before (it reads the views it asked for)
+    loose = replace(obs, path=estimate(rt, locked=False))
+    assert Follow(rt).wants(loose).offsets
+    # locked on another edge than the policy asks for: not its to follow
+    other = replace(obs, path=estimate(rt, edge=2))
+    assert Follow(rt).wants(other).offsets
+
+
+def test_at_the_end_of_the_route_it_turns_to_the_taught_heading_then_stands() -> None:
+    rt = runtime()
+    end = rt.paths[0].length
+    obs = observation(rt, action=Action.navigate(0), active_edge=0, goal=B)
+    turned = replace(obs, path=estimate(rt, along=end, heading=0.5))
+    proposal = Follow(rt).propose(turned)
+    assert proposal is not None and proposal.command.v == 0 and proposal.command.w < 0
+    facing = replace(obs, path=estimate(rt, along=end, heading=0.01))
+    still = Follow(rt).propose(facing)
+    assert still is not None and (still.command.v, still.command.w) == (0.0, 0.0)
+
+
+def test_a_tracker_that_joined_the_sought_edge_takes_over_from_the_search() -> None:
+    rt = runtime()
+    obs = observation(rt, action=Action.rotate(0), goal=B)
+    joined = replace(obs, path=estimate(rt, along=0.2, lateral=0.4))
+    assert FindEdge(rt).propose(joined) is None
+    assert FindEdge(rt).wants(joined).offsets == frozenset()
+    proposal = Follow(rt).propose(joined)
+    assert proposal is not None and proposal.command.action == Action.navigate(0)
+
+
+def test_a_lost_tracker_drives_back_along_its_trace_once() -> None:
+    rt = runtime()
+    retrace = Retrace(rt)
+    route = tuple(np.array([x, 0.3 * (x - 0.6) / 0.6, 0.0]) for x in (1.2, 1.0, 0.8, 0.6))
+    lost = estimate(rt, along=1.2, lateral=0.3, locked=False, since_fix_s=3.0)
+    obs = replace(
+        observation(rt, action=Action.navigate(0), active_edge=0), path=lost, retrace=route
+    )
+    proposal = retrace.propose(obs)
+    assert proposal is not None and proposal.command.behaviour == "retrace"
+    assert proposal.command.v < 0  # backwards: the camera keeps facing the way the path goes
+    assert retrace.events() == {"retracing"}
+    # lost only a moment ago: no retracing yet
+    fresh = replace(obs, path=replace(lost, since_fix_s=0.5))
+    assert Retrace(rt).propose(fresh) is None
+    # back where it was locked: it stands, and does not retrace to the same place again
+    back = replace(obs, path=replace(lost, pose=np.array([0.6, 0.0, 0.0])))
+    arrived = retrace.propose(back)
+    assert arrived is not None and (arrived.command.v, arrived.command.w) == (0.0, 0.0)
+    assert retrace.propose(obs) is None
+    # a trace longer than retrace_max_m is not driven back along
+    far = tuple(np.array([x, 0.0, 0.0]) for x in np.linspace(4.0, 0.0, 20))
+    assert Retrace(rt).propose(replace(obs, retrace=far)) is None
+
+
+def test_the_vote_is_taken_at_the_tracked_image_while_the_belief_holds_the_edge() -> None:
+    rt = runtime()
+    g = rt.graph
+    # the belief split between edge 0 (A -> B) and edge 2 (B -> C), the vote for edge 2
+    belief = np.zeros(g.n_fine)
+    lo0 = g.n_locations + int(g.edge_offsets[0])
+    lo2 = g.n_locations + int(g.edge_offsets[2])
+    belief[lo0 + 3] = 0.4
+    belief[lo2 + 3] = 0.6
+    asked = observation(rt, action=Action.navigate(2), active_edge=2, goal=B).decision
+    est = estimate(rt, edge=0, along=0.5)
+    kept = committed(rt, belief, asked, B, est, hold_goal=True)
+    assert kept.action == Action.navigate(0) and kept.active_edge == 0
+    # the belief barely holds the tracked edge: the policy's decision stands
+    weak = belief.copy()
+    weak[lo0 + 3], weak[lo2 + 3] = 0.1, 0.9
+    assert committed(rt, weak, asked, B, est, hold_goal=True) == asked
+    # not locked, or at the end of the edge (the next edge is the policy's), or Explore
+    assert committed(rt, belief, asked, B, replace(est, locked=False), hold_goal=True) == asked
+    end = replace(est, along_m=est.length_m - 0.1)
+    assert committed(rt, belief, asked, B, end, hold_goal=True) == asked
+    explore = replace(asked, action=Action.explore())
+    assert committed(rt, belief, explore, B, est, hold_goal=True).action.kind == ActionKind.EXPLORE
