@@ -32,9 +32,10 @@ from server.navigation.command import Command, Proposal
 from server.navigation.geometry import inverse, relative
 from server.navigation.observation import Observation, ViewRequest, Views
 from server.navigation.params import NavigationParams
+from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import pursue
 from server.navigation.runtime import TourRuntime
-from server.navigation.scanmatch import ScanFit, match_profiles_robust
+from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.navigation.tracking import move
 from server.vision.homing import ScaleResult
 
@@ -48,6 +49,9 @@ def top_spins(rt: TourRuntime, obs: Observation, location: int, most: int = 3) -
 
 SPOT_M = 0.08
 """Within this of a place's taught spot (by the depth profiles) the robot stands on it, m."""
+AMBIGUOUS_SCORE = 0.01
+"""An alignment of the profiles elsewhere whose score is within this of the best one's makes
+the spot ambiguous (:attr:`~server.navigation.scanmatch.ScanFit.score`)."""
 
 
 def spot_by_scan(
@@ -56,18 +60,24 @@ def spot_by_scan(
     """Where ``location``'s taught spot is, in the robot's frame (``(2,)`` metres, x ahead, y
     left), from the frame's depth profile aligned with those taught with the place's spin
     images (all taken on the spot; the three the engine ranks highest for this frame are
-    tried, from starts up to 1.2 m around it: :func:`match_profiles_robust`); ``None`` without
-    a depth profile, without taught ones, or when none aligns well (fewer than 10 points
-    agreeing, or more than 5 cm apart on average)."""
+    tried, from starts up to 1.2 m around it:
+    :func:`~server.navigation.scanmatch.match_profiles_starts`). ``None`` without a depth
+    profile or taught ones; when the place's best spin view is less similar to the frame than
+    ``MotionParams.found_similarity`` (a depth profile aligns with any wall: the camera must
+    see the place); when none aligns well (fewer than 10 points agreeing, or more than 5 cm
+    apart on average); or when another alignment about as good puts the spot elsewhere."""
     tp = rt.params.topometric
     if obs.depth is None or not tp.enabled or not tp.scan:
         return None
-    best: ScanFit | None = None
-    for image in top_spins(rt, obs, location):
+    spins = top_spins(rt, obs, location)
+    if not spins or float(obs.similarity.image[spins[0]]) < rt.params.motion.found_similarity:
+        return None
+    fits: list[ScanFit] = []
+    for image in spins:
         taught = rt.taught_depth.get(image)
         if taught is None:
             continue
-        fit = match_profiles_robust(
+        fits += match_profiles_starts(
             taught,
             obs.depth,
             np.zeros(3),
@@ -77,16 +87,21 @@ def spot_by_scan(
             along_m=(0.0, 0.6, -0.6),
             turns_rad=(0.0,),
         )
-        if fit is not None and (
-            best is None or fit.rms_m + 0.5 / fit.pairs < best.rms_m + 0.5 / best.pairs
-        ):
-            best = fit
-    if best is None or best.pairs < 10 or best.rms_m > 0.05:
+    if not fits:
         return None
-    # the robot's pose in the spin image's frame (whose origin is the spot): the spot seen
-    # from the robot
-    spot = inverse(best.pose)
-    return np.asarray(spot[:2], dtype=np.float64)
+    fits.sort(key=lambda f: f.score)
+    best = fits[0]
+    if best.pairs < 10 or best.rms_m > 0.05:
+        return None
+    # the robot's pose in the spin image's frame, whose origin is the spot: the spot as the
+    # robot sees it
+    spot = inverse(best.pose)[:2]
+    for other in fits[1:]:  # another alignment about as good puts it elsewhere: cannot tell
+        if other.score > best.score + AMBIGUOUS_SCORE:
+            break
+        if float(np.hypot(*(inverse(other.pose)[:2] - spot))) > 2 * SPOT_M:
+            return None
+    return np.asarray(spot, dtype=np.float64)
 
 
 class SpotFix:
@@ -420,16 +435,23 @@ class Docking:
 
     # -- the approach --------------------------------------------------------------------------
 
-    def track(self, command: Command, dt: float) -> None:
+    def track(self, command: Command, dt: float, path: PathEstimate | None = None) -> None:
         """Count the robot time spent following a taught edge into the goal (``approach_s``);
         any other move but standing still starts the count again (the approach must be the
-        robot's last move: one that turned or explored since may have lost its place)."""
+        robot's last move: one that turned or explored since may have lost its place). With
+        topometric repeat, only following with the path tracker locked on that edge counts
+        (``path``: this frame's estimate): driving along an edge the robot is not sure to be
+        on brought robots that were elsewhere to "arrive" by the belief alone."""
         a = self.approach
         edge, kind = command.action.edge, command.action.kind
+        tracked = not self.p.topometric.enabled or (
+            path is not None and path.locked and path.edge == edge
+        )
         if (
             kind == ActionKind.NAVIGATE
             and edge is not None
             and (self.rt.graph.edges[edge].target == self.goal)
+            and tracked
         ):
             if edge != a.edge:
                 a.edge, a.dock_m = edge, 0.0
@@ -453,18 +475,21 @@ class Docking:
         if placing or not (a.done and obs.at_goal):
             a.log_scales.clear()
             return None, False
-        if not p.dock or a.edge is None or self.placing.second_axis:
-            return None, True  # (the second axis ends in place docking's own verdict)
-        est = obs.path
-        if est is not None and est.locked and est.edge == a.edge:
+        if a.edge is not None and p.topometric.enabled:
             # the path tracker knows where the robot is on the way in: it follows the path to
-            # its end and faces the way taught; the robot is there when the tracker says so
+            # its end and faces the way taught; the robot is there when the tracker says so,
+            # and only then (a tracker that lost the path sends it on along it first)
             a.log_scales.clear()
+            est = obs.path
+            if est is None or not est.locked or est.edge != a.edge:
+                return None, False
             if self._tracked_there(obs, a.edge):
                 return None, True
             command, why = track_command(self.rt, obs, est)
             docking = Command(command.v, command.w, command.action, command.target_image, "dock")
             return Proposal(docking, f"on to the taught spot: {why}"), False
+        if not p.dock or a.edge is None or self.placing.second_axis:
+            return None, True  # (the second axis ends in place docking's own verdict)
         if a.log_scales:  # the last frame's command was a docking move
             # counted as commanded, not as driven: a robot pressed against something gives up too
             a.dock_m += mp.dock_v * obs.dt

@@ -221,7 +221,7 @@ class Navigator:
         proposals: dict[str, Proposal | None] = {b.name: b.propose(obs) for b in crew.motion}
         proposals[crew.docking.name] = placing = crew.docking.place(obs)
         winner, chosen = arbitrate(proposals)
-        crew.docking.track(chosen.command, dt)
+        crew.docking.track(chosen.command, dt, obs.path)
         docking, there = crew.docking.confirm(obs, placing is not None)
         if docking is not None:
             winner, chosen = "dock", docking

@@ -219,6 +219,8 @@ def perceive(
     p = runtime.params
     features = extract(frame.image, p.features)
     similarities, likelihood = runtime.observe(features)
+    if path is not None and path.estimate is not None:
+        likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
     known = runtime.familiarity(similarities)
     summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known)
     similarity = preferred(similarities, summary)

@@ -18,7 +18,7 @@ from server.belief.tracker import BeliefSummary, fine_likelihood
 from server.domain import TourGraph
 from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
-from server.navigation.pathtrack import PathTracker
+from server.navigation.pathtrack import PathEstimate, PathTracker, path_likelihood
 from server.policy.costs import cost_to_goal
 from server.policy.disambiguation import fine_profiles
 from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
@@ -160,6 +160,20 @@ class TourRuntime:
             edge_ends=tuple((e.source, e.target) for e in g.edges),
             depth=self.taught_depth.get,
         )
+
+    def path_evidence(self, estimate: PathEstimate) -> FloatArray:
+        """``(n_fine,)`` the path tracker's word as a likelihood (all ones when it has none:
+        :func:`~server.navigation.pathtrack.path_likelihood`)."""
+        g = self.graph
+        first = g.n_locations + int(g.edge_offsets[estimate.edge])
+        out = path_likelihood(
+            estimate,
+            first,
+            self.paths[estimate.edge].along,
+            g.n_fine,
+            self.params.topometric.path_evidence,
+        )
+        return np.ones(g.n_fine) if out is None else out
 
     def link(self, edge_in: int, edge_out: int) -> float | None:
         """The heading (rad) of ``edge_in``'s last image in ``edge_out``'s frame, where

@@ -1,4 +1,10 @@
-"""One robot's step pipeline on a small synthetic tour: tasks, the approach rule, the belief."""
+"""One robot's step pipeline on a small synthetic tour: tasks, the approach rule, the belief.
+
+The synthetic scenes are textures without a room's geometry and the frames carry no depth
+profile, so the path tracker cannot lock here: these tests run the step as it goes without
+topometric repeat (``topometric.enabled`` False: homing along edges, arrival by the views'
+scale); tests/unit/navigation/test_navigation_topometric.py and test_navigation_pathtrack.py
+cover the path tracker."""
 
 from __future__ import annotations
 
@@ -21,11 +27,13 @@ from server.navigation import Command, NavigationParams, Task, TourRuntime
 from server.navigation.behaviours import follow_command, follow_views
 from server.navigation.docking import Docking
 from server.navigation.observation import Outcome, ViewRequest, match_views
+from server.navigation.pathtrack import TopometricParams
 from server.session import RobotSession
 from server.vision.features import extract
 
 
 def session(**changes: object) -> RobotSession:
+    changes.setdefault("topometric", TopometricParams(enabled=False))
     params = replace(NavigationParams(), **changes)  # type: ignore[arg-type]
     return RobotSession("rover", TourRuntime(GRAPH, FEATURES, params))
 
