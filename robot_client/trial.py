@@ -247,12 +247,14 @@ def run_trial(
     on_step: StepHook | None = None,
     record: bool | None = None,
     truth: TaughtTruth | None = None,
+    depth_sensor: bool = True,
 ) -> TrialResult:
     """Send the robot to ``goal`` from wherever it stands and drive until the task ends.
 
     ``tour`` (the taught graph) gives the shortest taught route for the path ratio;
     ``record``: ask the server to record the task (``None``: its setting decides);
-    ``truth``: where the taught paths really are, for the tracking error."""
+    ``truth``: where the taught paths really are, for the tracking error; ``depth_sensor``
+    False: the robot sends no depth profile (a one-webcam robot)."""
     place = next(p for p in plan.places if p.name == goal)
     pose = robot.pose
     start = (pose.x, pose.y, pose.theta)
@@ -301,7 +303,7 @@ def run_trial(
         camera=robot,
         motors=robot,
         clock=robot,
-        depth=robot,
+        depth=robot if depth_sensor else None,
         params=LoopParams(max_steps=max_steps, wait_for_answer=True),
         on_step=judge,
     )

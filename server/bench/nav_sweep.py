@@ -30,7 +30,7 @@ import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -82,6 +82,7 @@ class SweepConfig:
     record_all: bool = False  # keep every trial's recording, not only the failures'
     experience_runs: int = 0  # runs per plan and condition that add experiences first
     junctions: bool = False  # apply the tour's junctions after teaching (--junctions)
+    no_depth: bool = False  # a robot without a depth sensor: taught and navigating (--no-depth)
 
 
 def recording_key(plan_sha256: str, seed: int) -> str:
@@ -154,8 +155,11 @@ class Worker:
             recording = TourRecording.load(Path(self.config.recordings[plan]))
             name = f"teacher-{plan}"
             with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
+                steps = recording.steps
+                if self.config.no_depth:  # a one-webcam robot taught it: no depth profiles
+                    steps = tuple(replace(step, depth=None) for step in steps)
                 graph = upload_tour(
-                    client, name, recording.steps, tour=f"home {plan}: {self.plans[plan].name}"
+                    client, name, steps, tour=f"home {plan}: {self.plans[plan].name}"
                 )
                 # the server prepares the tour (features, weights, distinctiveness) for the
                 # first goto: here, with time to spare on a loaded machine, not in a trial's
@@ -220,6 +224,7 @@ class Worker:
                 else _tracer(robot, trace, self._truth.get(spec.plan)),
                 record=True if self.config.record is not None else None,
                 truth=self._truth.get(spec.plan),
+                depth_sensor=not self.config.no_depth,
             )
             evidence = self._keep_recording(client, name, spec, result.success)
         if self.config.trace is not None:
@@ -269,6 +274,7 @@ class Worker:
                     goal,
                     tour=graph,
                     max_steps=self.config.max_steps,
+                    depth_sensor=not self.config.no_depth,
                 )
                 if result.success:
                     added += sum(c.images for c in client.learn(name) if c.kind == "experience")

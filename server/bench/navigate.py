@@ -84,6 +84,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "set for you",
     )
     parser.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="a robot without a depth sensor (one web-cam): the tour is taught and every trial "
+        "driven without depth profiles; obstacle avoidance then rests on the bump and stall "
+        "behaviours",
+    )
+    parser.add_argument(
         "--junctions",
         action="store_true",
         help="after teaching each plan, find and apply its junctions of shared path prefixes "
@@ -321,6 +328,7 @@ def run(args: argparse.Namespace) -> int:
             record_all=args.record_all,
             experience_runs=args.experience_runs,
             junctions=args.junctions,
+            no_depth=args.no_depth,
         )
         bar = tqdm(total=len(specs), desc="trials", unit="trial")
 
@@ -384,6 +392,7 @@ def run(args: argparse.Namespace) -> int:
         "max_steps": args.max_steps,
         "experience_runs": args.experience_runs,
         "junctions": args.junctions,
+        "no_depth": args.no_depth,
         "settings": dict(args.settings),
         "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),
         "workers": args.workers,

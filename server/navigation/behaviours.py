@@ -145,14 +145,22 @@ END_M = 0.05
 heading at the goal), metres."""
 
 
-def tracked(obs: Observation) -> PathEstimate | None:
+def tracked(rt: TourRuntime, obs: Observation) -> PathEstimate | None:
     """The path estimate, when the tracker is locked on the edge the policy asks for (the
     active edge of Navigate, or the edge RotateAndFindEdge looks for: the robot has joined it
-    from where it stands)."""
+    from where it stands, and its view looks like the taught one there, at least
+    ``MotionParams.found_similarity``)."""
     est = obs.path
-    if est is None or not est.locked:
+    if est is None or not est.locked or asked_edge(obs) != est.edge:
         return None
-    return est if asked_edge(obs) == est.edge else None
+    if obs.decision.action.kind == ActionKind.ROTATE_AND_FIND_EDGE:
+        # joining from a place: only when the view also looks like the taught one there, as
+        # a search would need to find it (a corridor's depth and its doors look alike both
+        # ways: a tracker locked facing the wrong way sent the robot off backwards)
+        seen = float(obs.similarity.image[est.image])
+        if seen < rt.params.motion.found_similarity:
+            return None
+    return est
 
 
 def asked_edge(obs: Observation) -> int | None:
@@ -176,7 +184,13 @@ def track_command(rt: TourRuntime, obs: Observation, est: PathEstimate) -> tuple
     action = Action.navigate(est.edge)
     if est.remaining_m <= END_M:
         if not into_goal:
-            return Command(0.0, 0.0, action, est.image, "follow"), "at the end of the path"
+            # the next edge is the policy's to choose once the belief is at the place: creep
+            # on the way taught meanwhile (standing still, the belief never got there when
+            # the tracker's along was off)
+            error = heading_error(est.pose, float(path.poses[-1, 2]))
+            w = float(np.clip(2.0 * error, -tp.pursuit.max_w, tp.pursuit.max_w))
+            creep = Command(tp.pursuit.min_v, w, action, est.image, "follow")
+            return creep, "at the end of the path: on until the next one"
         error = heading_error(est.pose, float(path.poses[-1, 2]))
         v, w = (0.0, 0.0) if abs(error) <= 0.05 else turn_to(error, tp.pursuit)
         return Command(v, w, action, est.image, "follow"), "at the goal: facing the way taught"
@@ -210,12 +224,12 @@ class Follow:
 
     def wants(self, obs: Observation) -> ViewRequest:
         target = self._target(obs)
-        if target is None or tracked(obs) is not None:
+        if target is None or tracked(self.rt, obs) is not None:
             return NOTHING
         return follow_views(self.rt, *target)
 
     def propose(self, obs: Observation) -> Proposal | None:
-        est = tracked(obs)
+        est = tracked(self.rt, obs)
         if est is not None:
             return Proposal(*track_command(self.rt, obs, est))
         target = self._target(obs)
@@ -331,7 +345,7 @@ class FindEdge:
 
     def wants(self, obs: Observation) -> ViewRequest:
         edge = self._edge(obs)
-        if edge is None or self._exploring(obs) or tracked(obs) is not None:
+        if edge is None or self._exploring(obs) or tracked(self.rt, obs) is not None:
             return NOTHING
         leave = None if self._unstuck(obs) else self._leave(obs, edge)
         if leave is not None:
@@ -358,7 +372,7 @@ class FindEdge:
             self.leaving, self.searched_rad = None, 0.0
         if self._exploring(obs):
             return self._explore(obs)
-        if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE or tracked(obs):
+        if obs.decision.action.kind != ActionKind.ROTATE_AND_FIND_EDGE or tracked(self.rt, obs):
             self._forget()  # (the path tracker has joined the edge: following takes over)
             return None
         edge = self._edge(obs)

@@ -77,7 +77,10 @@ class TopometricParams:
       profile now and one taught with the image nearest the estimate, their alignment
       (:mod:`server.navigation.scanmatch`) measures the whole pose; its covariance is at least
       these (the fit's own is optimistic), and it is gated at ``scan_gate`` (three degrees of
-      freedom, 11.34: 99 %). While not locked the fit starts from several guesses, shifted
+      freedom, 11.34: 99 %); along the path it is trusted to ``scan_along_sigma_m`` (0.3 m)
+      only (a corridor's profile aligns as well one door further on: a tracker that trusted
+      it stood "at the end" of a corridor 2.8 m short of it, the belief's word outvoted).
+      While not locked the fit starts from several guesses, shifted
       sideways by ``join_lateral_m`` (joining the path from up to 1.5 m beside it).
     * ``depth_fov_deg`` (90): the field of view the depth profile's rays span (as
       ``MotionParams.depth_fov_deg``).
@@ -111,6 +114,9 @@ class TopometricParams:
       the belief stayed at the place for 3.5 m of driving). 1 turns it off.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
+    * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
+      robot further than ``restart_m`` beside the path, or has measured no heading for
+      ``restart_s``, starts afresh where the belief puts the robot.
     * ``retrace_after_s`` (2.0 s), ``retrace_max_m`` (2.5 m): a tracker that has been lost
       this long drives back along its own trace to where it was last locked, if that is no
       further than this.
@@ -131,6 +137,7 @@ class TopometricParams:
     scan_sigma_m: float = 0.04
     scan_sigma_rad: float = 0.02
     scan_gate: float = 11.34
+    scan_along_sigma_m: float = 0.3
     join_lateral_m: tuple[float, ...] = (0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5)
     depth_fov_deg: float = 90.0
     gate: float = 9.0
@@ -148,6 +155,8 @@ class TopometricParams:
     arrive_m: float = 0.12
     arrive_rad: float = 0.15
     link_sigma: float = 0.15
+    restart_m: float = 2.0
+    restart_s: float = 10.0
     retrace_after_s: float = 2.0
     retrace_max_m: float = 2.5
     noise: OdometryNoise = field(default_factory=OdometryNoise)
@@ -277,6 +286,8 @@ class PathTracker:
         wanted = self.wanted(decision)
         if wanted is not None and wanted != self.edge:
             self._follow(wanted, decision, along_belief)
+        elif wanted is not None and self._astray():
+            self._start(wanted, decision, along_belief)  # afresh, where the belief says
         if self.edge is None:
             self.estimate = None
             return None
@@ -291,6 +302,15 @@ class PathTracker:
         self.estimate = est = self._estimate(t, fixes)
         self._remember(est)
         return est
+
+    def _astray(self) -> bool:
+        """Whether the estimate has drifted beyond use while not locked: further beside the
+        path than ``restart_m`` (a robot that far off has left it; the tracker would never
+        find it again by starting there), or without a heading measured for ``restart_s``."""
+        est = self.estimate
+        if est is None or est.locked:
+            return False
+        return abs(est.lateral_m) > self.p.restart_m or est.since_fix_s > self.p.restart_s
 
     def wanted(self, decision: Decision) -> int | None:
         """The edge the policy's decision asks to be on: the active edge of Navigate, the
@@ -447,6 +467,11 @@ class PathTracker:
         c, s = math.cos(float(pose_k[2])), math.sin(float(pose_k[2]))
         J = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         R = J @ fit.cov @ J.T + np.diag([p.scan_sigma_m**2, p.scan_sigma_m**2, p.scan_sigma_rad**2])
+        # along the path a profile may align one door further on: it tells the offset from
+        # the path and the heading, and how far along only loosely
+        h = path.heading_at(along)
+        t = np.array([math.cos(h), math.sin(h)])
+        R[:2, :2] += p.scan_along_sigma_m**2 * np.outer(t, t)
         up = update_pose(self.mean, self.cov, measured, R, gate=p.scan_gate)
         if not up.used:
             return 0

@@ -1,4 +1,5 @@
-"""Every command has help, and the README documents every command (sqlite-utils' rule)."""
+"""Every command has help, and docs/commands.md (which the README links) documents every
+command (sqlite-utils' rule)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from conftest import serve_exits_2
 
 from server.cli import COMMANDS, build_parser, main
 
-README = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+ROOT = Path(__file__).resolve().parents[2]
+COMMANDS_DOC = (ROOT / "docs" / "commands.md").read_text()
+README = (ROOT / "README.md").read_text()
 
 
 def installed() -> list[tuple[str, ...]]:
@@ -27,8 +30,13 @@ def test_command_has_help(path: tuple[str, ...], capsys: pytest.CaptureFixture[s
 
 
 @pytest.mark.parametrize("path", installed())
-def test_readme_documents_command(path: tuple[str, ...]) -> None:
-    assert "teachrepeat " + " ".join(path) in README
+def test_the_command_reference_documents_command(path: tuple[str, ...]) -> None:
+    assert "teachrepeat " + " ".join(path) in COMMANDS_DOC
+
+
+def test_the_readme_links_the_command_reference_and_gives_the_two_commands() -> None:
+    assert "(docs/commands.md)" in README
+    assert "make demo" in README and "make test" in README
 
 
 def test_parser_builds() -> None:

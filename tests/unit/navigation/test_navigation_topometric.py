@@ -79,12 +79,20 @@ def test_at_the_end_of_the_route_it_turns_to_the_taught_heading_then_stands() ->
 
 def test_a_tracker_that_joined_the_sought_edge_takes_over_from_the_search() -> None:
     rt = runtime()
-    obs = observation(rt, action=Action.rotate(0), goal=B)
-    joined = replace(obs, path=estimate(rt, along=0.2, lateral=0.4))
+    est = estimate(rt, along=0.2, lateral=0.4)
+    similarity = np.full(rt.graph.n_images, 0.1)
+    similarity[est.image] = 0.9  # the view looks like the taught one there
+    obs = observation(rt, action=Action.rotate(0), goal=B, similarity=similarity)
+    joined = replace(obs, path=est)
     assert FindEdge(rt).propose(joined) is None
     assert FindEdge(rt).wants(joined).offsets == frozenset()
     proposal = Follow(rt).propose(joined)
     assert proposal is not None and proposal.command.action == Action.navigate(0)
+    # locked, but the view does not look like the taught one there (facing the other way
+    # down a corridor that looks alike both ways): the search goes on
+    unlike = replace(observation(rt, action=Action.rotate(0), goal=B), path=est)
+    assert FindEdge(rt).wants(unlike).offsets
+    assert Follow(rt).propose(unlike) is None
 
 
 def test_a_lost_tracker_drives_back_along_its_trace_once() -> None:
