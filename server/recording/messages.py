@@ -152,6 +152,25 @@ def belief_message(
     }
 
 
+def path_message(step: StepRecord, result: schemas.NavigationFrameResult) -> dict[str, Any]:
+    """``/path``: the path tracker's estimate (topometric repeat), or ``tracking`` false."""
+    path = result.path
+    if path is None:
+        return {"timestamp": step.timestamp, "tracking": False}
+    return {
+        "timestamp": step.timestamp,
+        "tracking": True,
+        "edge": path.edge,
+        "along_m": path.along_m,
+        "lateral_m": path.lateral_m,
+        "heading_error": path.heading_error,
+        "sigma_lateral_m": path.sigma_lateral_m,
+        "sigma_along_m": path.sigma_along_m,
+        "sigma_heading": path.sigma_heading,
+        "locked": path.locked,
+    }
+
+
 def votes_message(
     step: StepRecord, result: schemas.NavigationFrameResult, graph: TourGraph
 ) -> dict[str, Any]:
@@ -209,6 +228,7 @@ def navigation_frame(
             *camera_messages(step.jpeg, meta, depth_fov_deg=depth_fov_deg),
             (topics.BELIEF, belief_message(step, result, graph)),
             (topics.VOTES, votes_message(step, result, graph)),
+            (topics.PATH, path_message(step, result)),
             (topics.COMMAND, command),
             (topics.FRAME, frame),
         )

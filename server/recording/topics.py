@@ -28,8 +28,9 @@ FRAME = "/frame"
 TOUR = "/tour"
 SCENE = "/scene"
 START = "/start"
+PATH = "/path"
 
-COMPARED = (BELIEF, VOTES, COMMAND)
+COMPARED = (BELIEF, VOTES, COMMAND, PATH)
 """What ``teachrepeat replay`` compares frame by frame (with the task's state from ``/frame``)."""
 
 _TIME: dict[str, Any] = {
@@ -191,6 +192,24 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             timestamp={"type": "number"},
             votes={"type": "object", "additionalProperties": {"type": "number"}},
             active_edge={"type": ["integer", "null"]},
+        ),
+    ),
+    PATH: (
+        "teachrepeat.Path",
+        _object(
+            "teachrepeat.Path",
+            "Where the robot is relative to the taught path it tracks (topometric repeat): "
+            "the path tracker's estimate and how sure it is; tracking false while it tracks none",
+            timestamp={"type": "number", "description": "robot clock, s"},
+            tracking={"type": "boolean"},
+            edge={"type": ["integer", "null"], "description": "edge id"},
+            along_m={"type": ["number", "null"]},
+            lateral_m={"type": ["number", "null"], "description": "left of the path, m"},
+            heading_error={"type": ["number", "null"], "description": "rad"},
+            sigma_lateral_m={"type": ["number", "null"]},
+            sigma_along_m={"type": ["number", "null"]},
+            sigma_heading={"type": ["number", "null"]},
+            locked={"type": ["boolean", "null"]},
         ),
     ),
     COMMAND: (

@@ -118,6 +118,7 @@ def test_a_task_reads_back_with_the_mcap_reader(recorded: Recorded) -> None:
             "/depth": ("foxglove.LaserScan", "jsonschema"),
             "/belief": ("teachrepeat.Belief", "jsonschema"),
             "/votes": ("teachrepeat.Votes", "jsonschema"),
+            "/path": ("teachrepeat.Path", "jsonschema"),
             "/command": ("teachrepeat.Command", "jsonschema"),
             "/frame": ("teachrepeat.Frame", "jsonschema"),
         }
@@ -126,7 +127,16 @@ def test_a_task_reads_back_with_the_mcap_reader(recorded: Recorded) -> None:
     counts = Counter(topic for topic, _ in messages)
     n = recorded.steps
     assert n >= STEPS - 1
-    for topic in ("/camera", "/odometry", "/depth", "/belief", "/votes", "/command", "/frame"):
+    for topic in (
+        "/camera",
+        "/odometry",
+        "/depth",
+        "/belief",
+        "/votes",
+        "/path",
+        "/command",
+        "/frame",
+    ):
         assert counts[topic] == n, (topic, counts)
     assert counts["/tour"] == counts["/start"] == 1 and counts["/task"] == 2
     assert counts["/scene"] == n + 1  # the tour, then the robot at every frame
