@@ -12,6 +12,7 @@ into the goal, lives in :mod:`server.navigation.docking`.
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
@@ -27,6 +28,7 @@ from server.motion import (
     rotate_command,
 )
 from server.navigation.command import Command, Proposal
+from server.navigation.geometry import relative
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import heading_error, lookahead_point, pursue, turn_to
@@ -145,6 +147,13 @@ END_M = 0.05
 heading at the goal), metres."""
 
 
+def goal_end(rt: TourRuntime, est: PathEstimate) -> npt.NDArray[np.float64]:
+    """``(3,)`` the end of the tracked edge's path (where the goal was taught, the way the
+    robot faced on arriving there) in the robot's frame by the estimate: metres ahead and to
+    the left, radians to turn."""
+    return relative(est.pose, rt.paths[est.edge].poses[-1])
+
+
 def tracked(rt: TourRuntime, obs: Observation) -> PathEstimate | None:
     """The path estimate, when the tracker is locked on the edge the policy asks for (the
     active edge of Navigate, or the edge RotateAndFindEdge looks for: the robot has joined it
@@ -191,6 +200,13 @@ def track_command(rt: TourRuntime, obs: Observation, est: PathEstimate) -> tuple
             w = float(np.clip(2.0 * error, -tp.pursuit.max_w, tp.pursuit.max_w))
             creep = Command(tp.pursuit.min_v, w, action, est.image, "follow")
             return creep, "at the end of the path: on until the next one"
+        end = goal_end(rt, est)
+        distance = float(np.hypot(end[0], end[1]))
+        if distance > tp.arrive_m:  # beside the end (the path ends there): drive onto it
+            slow = replace(tp.pursuit, speed=max(rt.params.motion.dock_v, tp.pursuit.min_v))
+            v, w = pursue(np.zeros(3), end[:2], params=slow, remaining_m=distance)
+            why = f"to the end of the path {distance:.2f} m away"
+            return Command(v, w, action, est.image, "follow"), why
         error = heading_error(est.pose, float(path.poses[-1, 2]))
         v, w = (0.0, 0.0) if abs(error) <= 0.05 else turn_to(error, tp.pursuit)
         return Command(v, w, action, est.image, "follow"), "at the goal: facing the way taught"

@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from server.belief.model import Action, ActionKind
 from server.motion import navigate_command, rotate_command
-from server.navigation.behaviours import track_command
+from server.navigation.behaviours import goal_end, track_command
 from server.navigation.command import Command, Proposal
 from server.navigation.geometry import inverse, relative
 from server.navigation.observation import Observation, ViewRequest, Views
@@ -109,30 +109,51 @@ class SpotFix:
     frame's estimate (:func:`spot_by_scan`) is carried to the next by the robot's odometry,
     and the spot counts as found only when two estimates in a row agree within ``agree_m``
     (a place's spin profiles can align wrongly, one frame here, the next there: the robot
-    turned back and forth in a hall so)."""
+    turned back and forth in a hall so). A found spot is carried on by the odometry through
+    up to ``carry_frames`` frames whose profiles say nothing (docking drives on, rather than
+    standing still on each such frame)."""
 
     agree_m = 0.25
+    carry_frames = 5
 
     def __init__(self) -> None:
-        self.spot: npt.NDArray[np.float64] | None = None  # robot frame, last frame
+        self.spot: npt.NDArray[np.float64] | None = None  # robot frame, last frame's estimate
+        self.found: npt.NDArray[np.float64] | None = None  # robot frame, last found spot
+        self.carried = 0  # frames the found spot has been carried without a new one
 
     def reset(self) -> None:
-        self.spot = None
+        self.spot = self.found = None
+        self.carried = 0
 
     def update(
         self, rt: TourRuntime, obs: Observation, location: int
     ) -> npt.NDArray[np.float64] | None:
         """The spot in the robot's frame when this frame's estimate agrees with the last
-        one's (carried by the odometry), else ``None`` (it remembers this one)."""
-        previous = self.spot
-        if previous is not None:  # where the last estimate lies after the robot's motion
-            moved = move(np.zeros(3), obs.v, obs.w, obs.dt)
-            previous = relative(moved, np.array([previous[0], previous[1], 0.0]))[:2]
-        found = spot_by_scan(rt, obs, location)
-        self.spot = found
-        if found is None or previous is None:
+        one's (carried by the odometry), or the last found spot carried here; else ``None``
+        (it remembers this frame's estimate)."""
+        moved = move(np.zeros(3), obs.v, obs.w, obs.dt)
+        previous, carried = (
+            None if spot is None else relative(moved, np.array([spot[0], spot[1], 0.0]))[:2]
+            for spot in (self.spot, self.found)
+        )
+        estimate = spot_by_scan(rt, obs, location)
+        self.spot = estimate
+        if (
+            estimate is not None
+            and previous is not None
+            and float(np.hypot(*(estimate - previous))) <= self.agree_m
+        ):
+            self.found, self.carried = estimate, 0
+            return estimate
+        self.carried += 1
+        disagrees = estimate is not None and (
+            carried is None or float(np.hypot(*(estimate - carried))) > self.agree_m
+        )
+        if carried is None or disagrees or self.carried > self.carry_frames:
+            self.found = None
             return None
-        return found if float(np.hypot(*(found - previous))) <= self.agree_m else None
+        self.found = carried
+        return carried
 
 
 def toward_spot(spot: npt.NDArray[np.float64], rt: TourRuntime) -> tuple[float, float]:
@@ -476,18 +497,8 @@ class Docking:
             a.log_scales.clear()
             return None, False
         if a.edge is not None and p.topometric.enabled:
-            # the path tracker knows where the robot is on the way in: it follows the path to
-            # its end and faces the way taught; the robot is there when the tracker says so,
-            # and only then (a tracker that lost the path sends it on along it first)
             a.log_scales.clear()
-            est = obs.path
-            if est is None or not est.locked or est.edge != a.edge:
-                return None, False
-            if self._tracked_there(obs, a.edge):
-                return None, True
-            command, why = track_command(self.rt, obs, est)
-            docking = Command(command.v, command.w, command.action, command.target_image, "dock")
-            return Proposal(docking, f"on to the taught spot: {why}"), False
+            return self._confirm_tracked(obs, a.edge)
         if not p.dock or a.edge is None or self.placing.second_axis:
             return None, True  # (the second axis ends in place docking's own verdict)
         if a.log_scales:  # the last frame's command was a docking move
@@ -500,20 +511,28 @@ class Docking:
             return turn, turn is None
         return self._dock_move(a.edge, target, fit)
 
+    def _confirm_tracked(self, obs: Observation, edge: int) -> tuple[Proposal | None, bool]:
+        """:meth:`confirm` with topometric repeat: the path tracker knows where the robot is on
+        the way in; it follows the path to its end and faces the way taught; the robot is there
+        when the tracker says so, and only then (a tracker that lost the path sends it on)."""
+        est = obs.path
+        if est is None or not est.locked or est.edge != edge:
+            return None, False
+        if self._tracked_there(obs, edge):
+            return None, True
+        command, why = track_command(self.rt, obs, est)
+        docking = Command(command.v, command.w, command.action, command.target_image, "dock")
+        return Proposal(docking, f"on to the taught spot: {why}"), False
+
     def _tracked_there(self, obs: Observation, edge: int) -> bool:
         """Whether the path tracker, locked on ``edge``, puts the robot at its end (within
-        ``TopometricParams.arrive_m`` along and across, and facing the way taught into the
+        ``TopometricParams.arrive_m`` of it, and facing the way taught into the
         goal within ``arrive_rad``): the view's word, measured, with no scale to read."""
         est, tp = obs.path, self.p.topometric
         if est is None or not est.locked or est.edge != edge:
             return False
-        end = self.rt.paths[edge].poses[-1]
-        heading = abs(float(np.angle(np.exp(1j * (float(est.pose[2]) - float(end[2]))))))
-        return (
-            est.remaining_m <= tp.arrive_m
-            and abs(est.lateral_m) <= tp.arrive_m
-            and heading <= tp.arrive_rad
-        )
+        end = goal_end(self.rt, est)
+        return float(np.hypot(end[0], end[1])) <= tp.arrive_m and abs(end[2]) <= tp.arrive_rad
 
     def _dock_move(self, edge: int, target: int, fit: ScaleResult) -> tuple[Proposal | None, bool]:
         """Creep on, back up, or settle (then the second axis) by the scale of ``fit``."""

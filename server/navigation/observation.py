@@ -249,7 +249,7 @@ def perceive(
             along_belief=None if wanted is None else runtime.belief_image(summary.belief, wanted),
             depth=frame.depth,
         )
-    mass = float(summary.belief[runtime.at_location[goal]].sum())
+    mass = runtime.goal_mass(summary.belief, goal, estimate)
     agrees = summary.evidence >= p.tracker.localised_evidence
     at_goal = mass >= p.arrive_mass and agrees and steps + 1 >= p.arrive_min_steps
     seen = Observation(

@@ -103,8 +103,12 @@ class TopometricParams:
       two edges that leave a place alike split the belief and flipped the vote between them
       from frame to frame, turning a robot that knew where it was back to searching.
     * ``arrive_m`` (0.12 m), ``arrive_rad`` (0.15 rad): a tracker locked on the edge into the
-      goal that puts the robot within this of the edge's end (along and across) and facing
-      the way taught docks it there: arrival needs no scale docking then.
+      goal that puts the robot within this of the edge's end and facing the way taught
+      docks it there: arrival needs no scale docking then (beside the end, the path
+      follower drives onto it).
+    * ``arrive_stretch_m`` (0.5 m): while it does, the belief's mass on that edge's images
+      within this of its end counts as at the goal (the belief favoured an image just before
+      the edge's exit zone at a robot standing on the taught spot, and never arrived).
     * ``path_evidence`` (4.0): while the tracker is locked, the belief's update weighs the
       images of the tracked edge near the tracked position (a Gaussian over metres along,
       of the tracker's along-path standard deviation and at least 0.3 m) this many times
@@ -154,6 +158,7 @@ class TopometricParams:
     path_evidence: float = 4.0
     arrive_m: float = 0.12
     arrive_rad: float = 0.15
+    arrive_stretch_m: float = 0.5
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0

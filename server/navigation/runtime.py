@@ -216,6 +216,27 @@ class TourRuntime:
                 best = (fit.inliers, last)
         return None if best is None else best[1]
 
+    def goal_mass(self, belief: FloatArray, goal: int, estimate: PathEstimate | None) -> float:
+        """The belief's mass at ``goal``: on the place and the exit zones of the edges into it
+        (``at_location``); while the path tracker is locked on an edge into the goal and puts
+        the robot within ``TopometricParams.arrive_m`` of its end, also on that edge's images
+        within ``arrive_stretch_m`` of the end (the images a robot standing at the end of the
+        path matches are physically there, whichever of them the belief favours)."""
+        at = self.at_location[goal]
+        tp = self.params.topometric
+        g = self.graph
+        if (
+            estimate is None
+            or not estimate.locked
+            or g.edges[estimate.edge].target != goal
+            or estimate.remaining_m > tp.arrive_m
+        ):
+            return float(belief[at].sum())
+        path = self.paths[estimate.edge]
+        first = g.n_locations + int(g.edge_offsets[estimate.edge])
+        stretch = first + np.nonzero(path.along >= path.length - tp.arrive_stretch_m)[0]
+        return float(belief[np.union1d(at, stretch)].sum())
+
     def belief_image(self, belief: FloatArray, edge: int) -> int:
         """The image of ``edge`` (index along it) the belief ``(n_fine,)`` puts most mass on."""
         g = self.graph
