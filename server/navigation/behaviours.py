@@ -157,8 +157,9 @@ def goal_end(rt: TourRuntime, est: PathEstimate) -> npt.NDArray[np.float64]:
 def tracked(rt: TourRuntime, obs: Observation) -> PathEstimate | None:
     """The path estimate, when the tracker is locked on the edge the policy asks for (the
     active edge of Navigate, or the edge RotateAndFindEdge looks for: the robot has joined it
-    from where it stands, and its view looks like the taught one there, at least
-    ``MotionParams.found_similarity``)."""
+    from where it stands, its view looks like the taught one there, at least
+    ``MotionParams.found_similarity``, and the place's spin views say it faces the way the
+    edge sets off: :meth:`TourRuntime.faces_departure`)."""
     est = obs.path
     if est is None or not est.locked or asked_edge(obs) != est.edge:
         return None
@@ -168,6 +169,8 @@ def tracked(rt: TourRuntime, obs: Observation) -> PathEstimate | None:
         # ways: a tracker locked facing the wrong way sent the robot off backwards)
         seen = float(obs.similarity.image[est.image])
         if seen < rt.params.motion.found_similarity:
+            return None
+        if not rt.faces_departure(obs.similarity.image, est.edge):
             return None
     return est
 

@@ -496,9 +496,18 @@ class Docking:
         if placing or not (a.done and obs.at_goal):
             a.log_scales.clear()
             return None, False
-        if a.edge is not None and p.topometric.enabled:
+        est = obs.path
+        tracking = a.edge is not None and est is not None and est.edge == a.edge
+        # a tracker lost within the last stretch (its views at the goal too close to a wall
+        # to fit) leaves it to the views' scale, as without topometric repeat
+        if (
+            tracking
+            and est is not None
+            and p.topometric.enabled
+            and (est.locked or est.remaining_m > p.topometric.arrive_stretch_m)
+        ):
             a.log_scales.clear()
-            return self._confirm_tracked(obs, a.edge)
+            return self._confirm_tracked(obs, est.edge)
         if not p.dock or a.edge is None or self.placing.second_axis:
             return None, True  # (the second axis ends in place docking's own verdict)
         if a.log_scales:  # the last frame's command was a docking move
@@ -512,9 +521,10 @@ class Docking:
         return self._dock_move(a.edge, target, fit)
 
     def _confirm_tracked(self, obs: Observation, edge: int) -> tuple[Proposal | None, bool]:
-        """:meth:`confirm` with topometric repeat: the path tracker knows where the robot is on
-        the way in; it follows the path to its end and faces the way taught; the robot is there
-        when the tracker says so, and only then (a tracker that lost the path sends it on)."""
+        """:meth:`confirm` while the path tracker is locked on the edge the robot came in by:
+        it knows where the robot is on the way in; it follows the path to its end and faces
+        the way taught; the robot is there when the tracker says so, and only then (a
+        tracker that lost the path sends it on along it first)."""
         est = obs.path
         if est is None or not est.locked or est.edge != edge:
             return None, False

@@ -235,10 +235,13 @@ def perceive(
     if p.ambiguity.disambiguate:
         decision = separate(runtime, summary.belief, decision, goal, hold_goal=hold_goal)
     if path is not None:
-        decision = committed(runtime, summary.belief, decision, goal, path.estimate, hold_goal)
+        decision = committed(
+            runtime, summary.belief, decision, goal, path.estimate, hold_goal, similarity.image
+        )
     estimate = None
     if path is not None:
         wanted = path.wanted(decision)
+        searching = decision.action.kind == ActionKind.ROTATE_AND_FIND_EDGE
         estimate = path.step(
             features,
             t=frame.timestamp,
@@ -248,6 +251,9 @@ def perceive(
             decision=decision,
             along_belief=None if wanted is None else runtime.belief_image(summary.belief, wanted),
             depth=frame.depth,
+            facing=not searching
+            or wanted is None
+            or runtime.faces_departure(similarity.image, wanted),
         )
     mass = runtime.goal_mass(summary.belief, goal, estimate)
     agrees = summary.evidence >= p.tracker.localised_evidence
@@ -281,19 +287,26 @@ def committed(
     goal: int,
     estimate: PathEstimate | None,
     hold_goal: bool,
+    similarity: FloatArray,
 ) -> Decision:
     """The decision, or, while the path tracker is locked on an edge the belief still holds
     (``TopometricParams.commit_mass`` on its images, its start and its end place), the vote of
     the tracked image when that is to go on along it: the tracker knows where along the edge
     the robot is better than the split belief does (look-alike edges leaving a place flip the
     vote from frame to frame). Explore, a decision for the tracked edge, and any decision at
-    the end of the tracked edge (the next edge is the policy's to choose) are left alone."""
+    the end of the tracked edge (the next edge is the policy's to choose) are left alone, and
+    so is a search for the tracked edge at its start place while the place's spin views
+    (``similarity``: ``(n_images,)``, the engine's for this frame) say the robot faces away
+    from where it sets off (:meth:`TourRuntime.faces_departure`)."""
     if estimate is None or not estimate.locked or decision.action.kind == ActionKind.EXPLORE:
         return decision
     if estimate.remaining_m <= runtime.params.topometric.chain_m:
         return decision  # at the end of the edge: the policy picks the next one
     edge = estimate.edge
     if decision.action.kind == ActionKind.NAVIGATE and decision.active_edge == edge:
+        return decision
+    searching = decision.action.kind == ActionKind.ROTATE_AND_FIND_EDGE
+    if searching and decision.action.edge == edge and not runtime.faces_departure(similarity, edge):
         return decision
     g = runtime.graph
     e = g.edges[edge]

@@ -280,12 +280,16 @@ class PathTracker:
         decision: Decision,
         along_belief: int | None,
         depth: npt.ArrayLike | None = None,
+        facing: bool = True,
     ) -> PathEstimate | None:
         """One frame: carry the estimate by the odometry, follow the policy's edge, correct
         by the camera and the depth profile. ``along_belief``: the image of the policy's edge
         the belief puts the robot at (where a new estimate starts); ``depth``: the frame's
-        depth profile (m, left to right) or ``None``. ``None`` while there is no edge to
-        track."""
+        depth profile (m, left to right) or ``None``; ``facing`` False: the robot, searching
+        for the edge at its start place, faces away from where it sets off (a corridor looks
+        alike both ways: views and depth would lock it on the path backwards), so nothing
+        corrects the estimate and it is not locked until it faces that way. ``None`` while
+        there is no edge to track."""
         if self.edge is not None:
             self.mean, self.cov = predict(self.mean, self.cov, v, w, dt, self.p.noise)
         wanted = self.wanted(decision)
@@ -296,6 +300,11 @@ class PathTracker:
         if self.edge is None:
             self.estimate = None
             return None
+        if not facing:
+            self.fixed_frames, self.last_fix = 0, None
+            self.estimate = est = self._estimate(t, 0)
+            self._remember(est)
+            return est
         if along_belief is not None and wanted == self.edge:
             self._along(along_belief)
         fixes = self._correct(features, t)

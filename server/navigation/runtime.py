@@ -109,6 +109,7 @@ class TourRuntime:
         self.taught_depth: dict[int, npt.NDArray[np.float32]] = {}
         self._links: dict[tuple[int, int], float | None] = {}
         self._links_lock = threading.Lock()
+        self._departure_spins: dict[int, int | None] = {}
         # how to read a taught image's pixels (set by whoever built the runtime), for
         # NavigationParams.dock_taught_zooms; without it docking zooms the frame only
         self.taught_pixels: TaughtPixels | None = None
@@ -215,6 +216,48 @@ class TourRuntime:
                 last = heading_j + float(p_in.poses[-1, 2] - p_in.poses[j, 2])
                 best = (fit.inliers, last)
         return None if best is None else best[1]
+
+    def departure_spin(self, edge: int) -> int | None:
+        """Which of the source place's spin images (index among them) faces the way ``edge``
+        sets off: the one whose features agree best (most inliers of the two-view fit,
+        :func:`~server.vision.relpose.relative_pose`) with the edge's image where the taught
+        robot set off; ``None`` without spin images or when none fits. Made once per edge."""
+        with self._links_lock:
+            if edge in self._departure_spins:
+                return self._departure_spins[edge]
+        spins = self.spin_images[self.graph.edges[edge].source]
+        path = self.paths[edge]
+        found: int | None = None
+        if len(spins) and path.n_images:
+            k = self.edge_image(edge, min(self.departure[edge], path.n_images - 1))
+            tp = self.params.topometric
+            most = 0
+            for i, image in enumerate(spins):
+                src, dst = match_features(
+                    self.features[int(image)], self.features[k], params=HomingParams()
+                )
+                fit = relative_pose(src, dst, tp.camera, tp.relpose)
+                if fit is not None and fit.inliers > most:
+                    found, most = i, fit.inliers
+        with self._links_lock:
+            self._departure_spins[edge] = found
+        return found
+
+    def faces_departure(self, similarity: FloatArray, edge: int) -> bool:
+        """Whether a robot at ``edge``'s source place, whose view the engine scores
+        ``similarity`` ``(n_images,)`` against the taught images, faces within a quarter turn
+        of the way the edge sets off: the spin image it looks most like, against the one that
+        faces that way (:meth:`departure_spin`), the spin images taken evenly over one turn.
+        ``True`` when it cannot tell (fewer than 8 spin images, no fit). A corridor looks
+        alike both ways: its views alone let a robot facing away join the path."""
+        spins = self.spin_images[self.graph.edges[edge].source]
+        departs = self.departure_spin(edge)
+        if len(spins) < 8 or departs is None:
+            return True
+        now = int(np.argmax(similarity[spins]))
+        steps = abs(now - departs) % len(spins)
+        turn = 2 * np.pi * min(steps, len(spins) - steps) / len(spins)
+        return bool(turn <= np.pi / 2)
 
     def goal_mass(self, belief: FloatArray, goal: int, estimate: PathEstimate | None) -> float:
         """The belief's mass at ``goal``: on the place and the exit zones of the edges into it

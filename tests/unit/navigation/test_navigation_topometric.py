@@ -7,13 +7,17 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from navigation_testkit import B, observation, runtime
+from navigation_testkit import GRAPH, A, B, observation, runtime
+from vision_testkit import scene
 
 from server.belief.model import Action, ActionKind
+from server.domain import Edge, Location, TourGraph
+from server.navigation import NavigationParams
 from server.navigation.behaviours import FindEdge, Follow, Retrace
 from server.navigation.observation import committed
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.runtime import TourRuntime
+from server.vision.features import extract
 
 
 def estimate(
@@ -75,6 +79,32 @@ def test_at_the_end_of_the_route_it_turns_to_the_taught_heading_then_stands() ->
     facing = replace(obs, path=estimate(rt, along=end, heading=0.01))
     still = Follow(rt).propose(facing)
     assert still is not None and (still.command.v, still.command.w) == (0.0, 0.0)
+    # at the end but beside it: it drives onto the end (turning toward it first)
+    beside = Follow(rt).propose(replace(obs, path=estimate(rt, along=end, lateral=-0.3)))
+    assert beside is not None and "to the end of the path 0.30 m away" in beside.reason
+    assert beside.command.w > 0  # the end lies to its left
+
+
+def test_a_robot_facing_away_from_where_an_edge_sets_off_is_told_by_the_spin_views() -> None:
+    ids = iter(range(2000, 3000))
+    a, b = (Location(name, tuple(next(ids) for _ in range(12))) for name in "AB")
+    n = 10
+    path = Edge(
+        A, B, tuple(next(ids) for _ in range(n)), np.arange(n) * 0.5, np.full(n, 0.3), np.zeros(n)
+    )
+    graph = TourGraph((a, b), (path,))
+    seeds = [int(i) for i in graph.image_ids]
+    # the edge sets off the way spin image 3 of A (a quarter of the turn is three of them) faced
+    first = seeds.index(path.image_ids[0])
+    seeds[first] = a.image_ids[3]
+    rt = TourRuntime(graph, [extract(scene(s)) for s in seeds], NavigationParams())
+    assert rt.departure_spin(0) == 3
+    for seen, faces in ((3, True), (5, True), (0, True), (6, True), (7, False), (9, False)):
+        similarity = np.full(graph.n_images, 0.1)
+        similarity[rt.spin_images[A][seen]] = 0.9
+        assert rt.faces_departure(similarity, 0) == faces, seen
+    # fewer than 8 spin images: it cannot tell
+    assert runtime().faces_departure(np.full(GRAPH.n_images, 0.1), 0)
 
 
 def test_a_tracker_that_joined_the_sought_edge_takes_over_from_the_search() -> None:
@@ -131,15 +161,22 @@ def test_the_vote_is_taken_at_the_tracked_image_while_the_belief_holds_the_edge(
     belief[lo2 + 3] = 0.6
     asked = observation(rt, action=Action.navigate(2), active_edge=2, goal=B).decision
     est = estimate(rt, edge=0, along=0.5)
-    kept = committed(rt, belief, asked, B, est, hold_goal=True)
+    none = np.zeros(g.n_images)
+    kept = committed(rt, belief, asked, B, est, hold_goal=True, similarity=none)
     assert kept.action == Action.navigate(0) and kept.active_edge == 0
     # the belief barely holds the tracked edge: the policy's decision stands
     weak = belief.copy()
     weak[lo0 + 3], weak[lo2 + 3] = 0.1, 0.9
-    assert committed(rt, weak, asked, B, est, hold_goal=True) == asked
+    assert committed(rt, weak, asked, B, est, hold_goal=True, similarity=none) == asked
     # not locked, or at the end of the edge (the next edge is the policy's), or Explore
-    assert committed(rt, belief, asked, B, replace(est, locked=False), hold_goal=True) == asked
+    assert (
+        committed(rt, belief, asked, B, replace(est, locked=False), hold_goal=True, similarity=none)
+        == asked
+    )
     end = replace(est, along_m=est.length_m - 0.1)
-    assert committed(rt, belief, asked, B, end, hold_goal=True) == asked
+    assert committed(rt, belief, asked, B, end, hold_goal=True, similarity=none) == asked
     explore = replace(asked, action=Action.explore())
-    assert committed(rt, belief, explore, B, est, hold_goal=True).action.kind == ActionKind.EXPLORE
+    assert (
+        committed(rt, belief, explore, B, est, hold_goal=True, similarity=none).action.kind
+        == ActionKind.EXPLORE
+    )
