@@ -496,18 +496,9 @@ class Docking:
         if placing or not (a.done and obs.at_goal):
             a.log_scales.clear()
             return None, False
-        est = obs.path
-        tracking = a.edge is not None and est is not None and est.edge == a.edge
-        # a tracker lost within the last stretch (its views at the goal too close to a wall
-        # to fit) leaves it to the views' scale, as without topometric repeat
-        if (
-            tracking
-            and est is not None
-            and p.topometric.enabled
-            and (est.locked or est.remaining_m > p.topometric.arrive_stretch_m)
-        ):
+        if a.edge is not None and self._tracker_decides(obs, a.edge):
             a.log_scales.clear()
-            return self._confirm_tracked(obs, est.edge)
+            return self._confirm_tracked(obs, a.edge)
         if not p.dock or a.edge is None or self.placing.second_axis:
             return None, True  # (the second axis ends in place docking's own verdict)
         if a.log_scales:  # the last frame's command was a docking move
@@ -519,6 +510,16 @@ class Docking:
             turn = self._second_axis()
             return turn, turn is None
         return self._dock_move(a.edge, target, fit)
+
+    def _tracker_decides(self, obs: Observation, edge: int) -> bool:
+        """Whether the path tracker has the word on the arrival by ``edge``: topometric
+        repeat tracks that edge, locked, or lost but short of its last
+        ``arrive_stretch_m`` (a tracker lost within it, its views at the goal too close to a
+        wall to fit, leaves it to the views' scale, as without topometric repeat)."""
+        est, tp = obs.path, self.p.topometric
+        if not tp.enabled or est is None or est.edge != edge:
+            return False
+        return est.locked or est.remaining_m > tp.arrive_stretch_m
 
     def _confirm_tracked(self, obs: Observation, edge: int) -> tuple[Proposal | None, bool]:
         """:meth:`confirm` while the path tracker is locked on the edge the robot came in by:
