@@ -46,10 +46,11 @@ def taught_edge(start: np.ndarray, n: int = 80) -> tuple[EdgePath, list[np.ndarr
 
 
 def run(
-    offset: float, heading: float, steps: int = 200, seed: int = 0
+    offset: float, heading: float, steps: int = 200, seed: int = 0, facing_from: int = 0
 ) -> list[tuple[float, float, bool]]:
     """Drive by the tracker's estimate from ``offset`` m beside the start of the taught edge;
-    (true lateral, estimated lateral, locked) after every step."""
+    (true lateral, estimated lateral, locked) after every step. Before step ``facing_from``
+    the robot is said to face away from where the edge sets off."""
     rng = np.random.default_rng(seed)
     start = np.array([0.6, 1.5, 0.0])  # the taught edge runs along the room's middle
     path, depths = taught_edge(start)
@@ -76,6 +77,7 @@ def run(
             decision=decision,
             along_belief=6,  # the belief: near the start (a weak hint)
             depth=depth,
+            facing=step >= facing_from,
         )
         assert est is not None
         true_lateral = float(relative(start, truth)[1])
@@ -100,6 +102,13 @@ def test_from_beside_the_path_it_locks_on_and_brings_the_robot_onto_it() -> None
         assert np.median(errors) < 0.05 and errors.max() < 0.2  # the estimate against the truth
         assert abs(trace[-1][0]) < 0.1  # on the path by the end
         assert len(trace) < 200  # reached the end
+
+
+def test_a_robot_said_to_face_away_is_not_locked_on_until_it_faces_the_way() -> None:
+    trace = run(0.3, 0.1, facing_from=10)
+    assert not any(locked for _, _, locked in trace[:10])  # the profiles alone would lock it
+    first_lock = next(k for k, (_, _, locked) in enumerate(trace) if locked)
+    assert 10 <= first_lock < 25
 
 
 def test_a_tracker_carries_its_estimate_across_a_place_into_the_next_edge() -> None:
