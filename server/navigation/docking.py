@@ -208,8 +208,14 @@ class Approach:
     edge: int | None = None  # the edge of that approach
     dock_m: float = 0.0  # metres of docking moves commanded since the approach began
     log_scales: list[float] = field(default_factory=list)  # docking's last few log scales
+    spot_checks: int = 0  # frames held at the tracked end for the place's depth to tell
 
 
+SPOT_CHECKS = 3
+"""Frames the robot holds at the end of a tracked path for the place's depth to tell."""
+SPOT_HANDOVER_M = 0.25
+"""A taught spot by the place's depth further than this from the end of a tracked path
+hands over to place docking, m."""
 SCAN_MISSES = 5
 """Frames in a row docking by depth may find no spot before the views' scale takes over."""
 
@@ -479,7 +485,7 @@ class Docking:
             a.seconds += dt
             a.done = a.done or a.seconds >= self.p.approach_s
         elif kind != ActionKind.DO_NOTHING and self.needs_approach:
-            a.seconds, a.done, a.edge, a.dock_m = 0.0, False, None, 0.0
+            a.seconds, a.done, a.edge, a.dock_m, a.spot_checks = 0.0, False, None, 0.0, 0
 
     # -- docking along the edge ----------------------------------------------------------------
 
@@ -530,10 +536,30 @@ class Docking:
         if est is None or not est.locked or est.edge != edge:
             return None, False
         if self._tracked_there(obs, edge):
-            return None, True
+            return self._check_spot(obs, est)
         command, why = track_command(self.rt, obs, est)
         docking = Command(command.v, command.w, command.action, command.target_image, "dock")
         return Proposal(docking, f"on to the taught spot: {why}"), False
+
+    def _check_spot(self, obs: Observation, est: PathEstimate) -> tuple[Proposal | None, bool]:
+        """At the end of the path by the tracker: the place's own depth profiles (taught on
+        the spot, :class:`SpotFix`) have the last word. Held still up to ``SPOT_CHECKS``
+        frames for two of their estimates to agree; a spot further than ``SPOT_HANDOVER_M``
+        hands over to place docking by depth (a tracker sure of a lateral offset 0.8 m wrong
+        stood "at the end" of the path into an office); none, or one near: arrived."""
+        a = self.approach
+        spot = self.spot.update(self.rt, obs, self.goal)
+        if spot is None and self.spot.spot is not None and a.spot_checks < SPOT_CHECKS:
+            a.spot_checks += 1
+            hold = Command(0.0, 0.0, Action.navigate(est.edge), est.image, "dock")
+            return Proposal(hold, "at the end of the path: the place's depth profile?"), False
+        if spot is None or float(np.hypot(*spot)) <= SPOT_HANDOVER_M:
+            return None, True
+        self.placing.start("scan")
+        v, w = toward_spot(spot, self.rt)
+        command = Command(v, w, Action.do_nothing(), None, "place-dock")
+        why = f"the place's depth puts its taught spot {float(np.hypot(*spot)):.2f} m away"
+        return Proposal(command, why), False
 
     def _tracked_there(self, obs: Observation, edge: int) -> bool:
         """Whether the path tracker, locked on ``edge``, puts the robot at its end (within
