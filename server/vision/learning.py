@@ -248,6 +248,9 @@ def _positive_pairs(st: IntArray, window: int) -> tuple[IntArray, IntArray]:
     return np.concatenate(pairs_a), np.concatenate(pairs_b)
 
 
+_ANCHOR_BLOCK = 16  # anchors per block of _triplets' differences (16 x 64 x 600 float64: 5 MB)
+
+
 def _triplets(
     anchors: FloatArray,
     anchor_states: IntArray,
@@ -264,7 +267,12 @@ def _triplets(
     neg = rng.integers(0, len(sig), size=(len(anchors), learn.n_negatives))
     ok = st[neg] != anchor_states[:, None]
     d_pos = _blocks(sig[positives] - anchors, bounds)  # (M, T)
-    d_neg = _blocks(sig[neg] - anchors[:, None, :], bounds)  # (M, Nn, T)
+    # (M, Nn, T), a few anchors at a time: the (M, Nn, S) differences at once were 600 MB and
+    # took 11 s of a tour's 13 s runtime build; in blocks they stay in cache (same sums, 0.2 s)
+    d_neg = np.empty((len(anchors), neg.shape[1], len(bounds) - 1))
+    for i in range(0, len(anchors), _ANCHOR_BLOCK):
+        part = slice(i, i + _ANCHOR_BLOCK)
+        d_neg[part] = _blocks(sig[neg[part]] - anchors[part, None, :], bounds)
     weight = ok.astype(np.float64) / max(int(ok.sum()), 1)
     return d_pos[:, None, :] - d_neg, weight
 
