@@ -1,8 +1,8 @@
 """How well a navigation trial localised, judged against the simulator's ground truth.
 
 The navigator never sees the truth; only this judge does. Per frame it reads what the server
-answered (is the belief "localised", on which state; where Monte-Carlo localisation puts the
-robot; whether the policy was separating hypotheses) and compares it with the true pose:
+answered (is the belief "localised", on which state; whether the policy was separating
+hypotheses) and compares it with the true pose:
 
 * a **location** is right when the robot stands within :data:`LOCATION_RADIUS_M` of the
   place (the plan's position of the place of that name), or when it is the nearest place to
@@ -16,8 +16,7 @@ robot; whether the policy was separating hypotheses) and compares it with the tr
 Figures (:meth:`LocalisationJudge.summary`): the robot seconds from the task's start (a
 uniform belief) to the first frame localised on a right state, the number of wrong
 "localised" claims (runs of consecutive frames localised on a wrong state) and their frames,
-the frames disambiguating and separating, and the Monte-Carlo position error of every frame
-that had an estimate.
+and the frames disambiguating and separating.
 """
 
 from __future__ import annotations
@@ -56,7 +55,6 @@ class LocalisationJudge:
         self.judged_frames = 0
         self.disambiguating = 0
         self.separating = 0
-        self.mcl_error: list[float] = []
         self._wrong_run = False
 
     def right(
@@ -101,8 +99,6 @@ class LocalisationJudge:
         if result.disambiguation is not None:
             self.disambiguating += 1
             self.separating += result.disambiguation.separating
-        if result.pose is not None:
-            self.mcl_error.append(round(math.hypot(result.pose.x - x, result.pose.y - y), 3))
 
     def summary(self) -> dict[str, Any]:
         """The trial's localisation figures (keys of :class:`robot_client.trial.TrialResult`)."""
@@ -112,7 +108,6 @@ class LocalisationJudge:
             "wrong_claim_frames": self.wrong_frames,
             "disambiguating_frames": self.disambiguating,
             "separating_frames": self.separating,
-            "mcl_error_m": tuple(self.mcl_error),
         }
 
 

@@ -86,12 +86,9 @@ def teach_folder(
     fps: float = 10.0,
     speed: float = 0.3,
     progress: bool = True,
-    along_line: bool = False,
 ) -> TeachReport:
-    """Teach ``tour`` from the images in ``frames`` with the places in ``marks``. With
-    ``along_line`` every image carries a pose as if the route were straight (frame k at
-    ``k * speed / fps`` metres along x, facing +x), the odometry of a robot driving it at
-    ``speed``: a metric map for Monte-Carlo localisation where the folder has none."""
+    """Teach ``tour`` from the images in ``frames`` with the places in ``marks``, as a robot
+    driving it at ``speed`` m/s and ``fps`` frames a second would."""
     me = client.whoami()
     if me.robot is None:
         raise ApiError(403, "teaching needs a robot token, not the admin token", "forbidden")
@@ -115,12 +112,11 @@ def teach_folder(
                     skipped += 1
                     continue
                 timestamp = index / fps
-                pose = (index * speed / fps, 0.0, 0.0) if along_line else None
                 if index in marks:
                     client.mark_location(robot, marks[index])
-                    client.upload_spin_image(robot, jpeg, timestamp=timestamp, pose=pose)
+                    client.upload_spin_image(robot, jpeg, timestamp=timestamp)
                 else:
-                    client.upload_frame(robot, jpeg, timestamp=timestamp, v=speed, pose=pose)
+                    client.upload_frame(robot, jpeg, timestamp=timestamp, v=speed)
                 uploaded += 1
         ended = client.finish_teaching(robot)
     except BaseException:

@@ -133,7 +133,6 @@ class TrialResult:
     wrong_claim_frames: int = 0
     disambiguating_frames: int = 0  # the belief held separated hypotheses
     separating_frames: int = 0  # ... and the action was chosen to separate them
-    mcl_error_m: tuple[float, ...] = ()  # Monte-Carlo position error of every frame, m
     # topometric repeat: metres from the robot to the true path of the edge it follows, on
     # every frame it follows one by its pose relative to the path (the simulator's truth)
     tracking_error_m: tuple[float, ...] = ()

@@ -164,8 +164,7 @@ def _assemble(places2: FloatArray, paths: list[FloatArray], *, odometry: bool) -
 def posed_layout(graph: TourGraph) -> GraphLayout:
     """The layout of a tour whose every image carries its taught pose (``graph.has_poses``):
     each image where it was taken, each place at the mean of its spin images (or of the ends of
-    its edges, for a place without spin images) - the frame Monte-Carlo localisation reports
-    its pose in."""
+    its edges, for a place without spin images), in the frame the poses were sent in."""
     assert graph.image_pose is not None
     xy = np.asarray(graph.image_pose, dtype=np.float64)[:, :2]
     n_loc = graph.n_locations

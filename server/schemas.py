@@ -425,9 +425,9 @@ class FrameMeta(_Model):
         description="Optional pose of the camera while teaching: x and y in metres and the "
         "heading in radians, in the robot's own odometry frame (pose=x&pose=y&pose=theta), "
         "for a robot with a better pose source than its speeds (its wheel odometry topic, its "
-        "own SLAM): never a simulator's truth. Taught images with poses let the server "
-        "localise the robot on a metric map as well (Monte-Carlo localisation); ignored "
-        "while navigating.",
+        "own SLAM): never a simulator's truth. When every taught image has one, the dashboard "
+        "draws the taught paths where they were taken and GET /tours/{id} lists them; "
+        "ignored while navigating.",
     )
     stream: bool = Field(
         default=False,
@@ -516,17 +516,6 @@ class BeliefPublic(_Model):
     )
 
 
-class PosePublic(_Model):
-    """Where Monte-Carlo localisation puts the robot on the map of the taught paths (in the
-    frame the taught poses were sent in), beside the topological belief, never steering it."""
-
-    x: float = Field(description="Metres.")
-    y: float = Field(description="Metres.")
-    theta: float = Field(description="Heading, radians.")
-    std_m: float = Field(description="Spread of all particles around their mean, metres.")
-    mode_mass: float = Field(description="Share of the particles within 1 m of this pose.")
-
-
 class PathPublic(_Model):
     """Where the robot is relative to the taught path it follows (topometric repeat): the
     path tracking filter's estimate in the frame of the edge it tracks (docs/navigation.md)."""
@@ -575,9 +564,6 @@ class NavigationFrameResult(_Model):
     task: TaskPublic | None
     belief: BeliefPublic
     votes: dict[str, float] = Field(description="Vote mass of every action.")
-    pose: PosePublic | None = Field(
-        default=None, description="Monte-Carlo localisation's estimate, when it runs."
-    )
     disambiguation: DisambiguationPublic | None = Field(
         default=None, description="Set while the belief holds separated hypotheses."
     )

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation import Command, Frame, Navigator, Task, TaskState, TourRuntime
 from server.navigation.observation import Outcome
@@ -40,7 +39,6 @@ class StepRecord:
     command: Command
     step_ms: float
     outcome: Outcome | None = None
-    mcl: MclEstimate | None = None  # the metric pose estimate, when Monte-Carlo localisation runs
     path: PathEstimate | None = None  # the pose relative to the taught path (topometric repeat)
 
     def best_match(self) -> tuple[int, int | None, float | None]:
@@ -144,7 +142,6 @@ class RobotSession:
             command=step.command,
             step_ms=(time.perf_counter() - started) * 1000.0,
             outcome=step.outcome,
-            mcl=step.mcl,
             path=step.path,
         )
         self.history.append(record)

@@ -1,6 +1,6 @@
 """What the dashboard shows of ambiguity (docs/ambiguity.md): the distinctiveness of the taught
 images as colours along the edges, the belief's separated hypotheses when the policy is
-disambiguating, and Monte-Carlo localisation's pose with its uncertainty.
+disambiguating, and the pose relative to the taught path the robot tracks.
 
 Pure functions from the core's values to colours, points and markdown; the dashboard places
 them (kept apart from it so that its layout can change without touching these)."""
@@ -12,7 +12,6 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.mcl import MclEstimate
 from server.domain import TourGraph
 from server.navigation.pathtrack import PathEstimate
 
@@ -100,17 +99,6 @@ def disambiguation_text(
     return f"Disambiguating between {names}: {how}"
 
 
-def pose_text(estimate: MclEstimate | None) -> str:
-    """Markdown line of Monte-Carlo localisation's estimate and its uncertainty."""
-    if estimate is None:
-        return "Metric pose: off (needs taught poses and mcl.enabled)"
-    return (
-        f"Metric pose (Monte-Carlo): x {estimate.x:.2f} m, y {estimate.y:.2f} m, heading "
-        f"{math.degrees(estimate.theta):.0f} deg; spread {estimate.std_m:.2f} m, "
-        f"{estimate.mode_mass:.0%} of the particles within 1 m"
-    )
-
-
 def path_text(est: PathEstimate, graph: TourGraph) -> str:
     """Markdown line of the path tracker's estimate: which path, where along and beside it,
     how sure, and whether it steers by it."""
@@ -127,16 +115,13 @@ def path_text(est: PathEstimate, graph: TourGraph) -> str:
 def step_lines(
     hypotheses: tuple[tuple[int, float], ...],
     separating: bool,
-    estimate: MclEstimate | None,
     graph: TourGraph,
     path: PathEstimate | None = None,
 ) -> str:
-    """The markdown a navigating step adds: the disambiguation (when the belief is split), the
-    metric pose (when Monte-Carlo localisation runs) and the pose relative to the taught path
-    (while the path tracker tracks one); empty otherwise."""
+    """The markdown a navigating step adds: the disambiguation (when the belief is split) and
+    the pose relative to the taught path (while the path tracker tracks one); empty
+    otherwise."""
     lines = [disambiguation_text(hypotheses, separating, graph)]
-    if estimate is not None:
-        lines.append(pose_text(estimate))
     if path is not None:
         lines.append(path_text(path, graph))
     return "".join(f"\n\n{line}" for line in lines if line)

@@ -662,7 +662,7 @@ class Dashboard:
         images = side_by_side(camera, best, (f"camera  t={step.timestamp:.1f} s", best_caption))
         target_img = captioned(target, target_caption, height=120)
         action_md = action_text(step, graph) + step_lines(
-            step.hypotheses, step.separating, step.mcl, graph, step.path
+            step.hypotheses, step.separating, graph, step.path
         )
         votes_md = votes_text(step.votes)
         along = along_edge_data(step, graph)
@@ -743,7 +743,6 @@ class Dashboard:
             states = step.state_belief
             position = fine_position(layout, graph, int(step.fine_belief.argmax()))
         goal = None if snap.task is None or snap.task.state != "underway" else snap.task.goal
-        metric = None if step is None else step.mcl
         tracked = None
         if step is not None and step.path is not None and step.path.edge < graph.n_edges:
             est = step.path
@@ -755,7 +754,6 @@ class Dashboard:
             states=states,
             position=position,
             goal=goal,
-            metric=metric,
             tracked=tracked,
         )
 

@@ -15,7 +15,6 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
-    from server.belief.mcl import MclEstimate
     from server.domain import TourGraph
     from server.layout import GraphLayout
     from server.session import Segment
@@ -210,17 +209,14 @@ def top_down(
     trail: npt.ArrayLike | None = None,
     goal: str | None = None,
     size: tuple[int, int] = MAP_SIZE,
-    metric: MclEstimate | None = None,
     tracked: Tracked | None = None,
 ) -> ImageArray:
     """The taught paths seen from above (layout metres), each place named, paths and places
     coloured by their belief ``states`` (``(n_states,)`` b(s), optional), the robot's most
     likely ``position`` (a layout point) as a red dot, the ``trail`` of earlier positions
-    (``(k, 2+)``) as a line, and the ``goal`` place ringed in green. ``metric``: Monte-Carlo
-    localisation's pose (a layout drawn from the taught poses is in its frame) as a blue
-    arrow in a circle of its spread, over its particles. ``tracked``: the path being tracked
-    (topometric repeat), drawn thick, and the robot on it where the tracker puts it, with a
-    circle of its lateral uncertainty (teal while locked, amber while not)."""
+    (``(k, 2+)``) as a line, and the ``goal`` place ringed in green. ``tracked``: the path
+    being tracked (topometric repeat), drawn thick, and the robot on it where the tracker puts
+    it, with a circle of its lateral uncertainty (teal while locked, amber while not)."""
     w, h = size
     img = np.full((h, w, 3), _MAP_BG, dtype=np.uint8)
     if graph.n_locations == 0:
@@ -254,8 +250,6 @@ def top_down(
         c = frame.px(np.asarray(position))
         cv2.circle(img, (int(c[0]), int(c[1])), radius + 2, (255, 255, 255), -1, cv2.LINE_AA)
         cv2.circle(img, (int(c[0]), int(c[1])), radius, _ROBOT, -1, cv2.LINE_AA)
-    if metric is not None and layout.odometry:
-        _draw_metric(img, frame, metric)
     if tracked is not None and tracked.position is not None:
         colour = _TRACKED if tracked.locked else _UNSURE
         c = frame.px(np.asarray(tracked.position))
@@ -279,23 +273,6 @@ class Tracked:
     position: npt.ArrayLike | None
     sigma_m: float
     locked: bool
-
-
-_METRIC = (37, 99, 235)
-
-
-def _draw_metric(img: ImageArray, frame: MapFrame, est: MclEstimate) -> None:
-    """Monte-Carlo localisation on the map: particles as dots, the pose as an arrow, its
-    spread (``std_m``) as a circle."""
-    for p in frame.px(est.cloud[:, :2]) if len(est.cloud) else ():
-        cv2.circle(img, (int(p[0]), int(p[1])), 1, (147, 197, 253), -1)
-    c = frame.px([est.x, est.y])
-    tip = frame.px([est.x + 0.6 * np.cos(est.theta), est.y + 0.6 * np.sin(est.theta)])
-    spread = max(3, round(est.std_m * frame.scale))
-    cv2.circle(img, (int(c[0]), int(c[1])), min(spread, 4 * img.shape[0]), _METRIC, 1, cv2.LINE_AA)
-    cv2.arrowedLine(
-        img, (int(c[0]), int(c[1])), (int(tip[0]), int(tip[1])), _METRIC, 2, cv2.LINE_AA
-    )
 
 
 def _label(img: ImageArray, text: str, centre: tuple[int, int]) -> None:

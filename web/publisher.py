@@ -26,7 +26,6 @@ import numpy.typing as npt
 
 if TYPE_CHECKING:
     from server import schemas
-    from server.belief.mcl import MclEstimate
     from server.domain import TourGraph
     from server.navigation.pathtrack import PathEstimate
     from server.services.container import Services
@@ -79,7 +78,6 @@ class StepView:
     model_weights: tuple[tuple[float, ...], ...] = ()  # each model's signature block weights
     hypotheses: tuple[tuple[int, float], ...] = ()  # separated hypotheses (disambiguation)
     separating: bool = False  # the action was chosen to tell them apart
-    mcl: MclEstimate | None = None  # Monte-Carlo localisation's pose (docs/ambiguity.md)
     path: PathEstimate | None = None  # the pose relative to the taught path being tracked
 
 
@@ -490,6 +488,5 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         light_change=float(summary.light_change),
         hypotheses=() if decision is None else decision.hypotheses,
         separating=False if decision is None else decision.separating,
-        mcl=record.mcl,
         path=record.path,
     )

@@ -164,8 +164,9 @@ class TrackerParams:
     * ``evidence_fast`` (0.5) / ``evidence_slow`` (0.05): EMA weights of the per-step evidence
       ratio ``sum(prediction * L) / max(L)`` (how well the predicted place explains the image,
       relative to the best-matching place anywhere; scale-free): the fast EMA is the recent
-      evidence, the slow one the usual evidence (as w_fast / w_slow in augmented MCL). The slow
-      one rises at the fast rate and decays at the slow rate, so it remembers good tracking.
+      evidence, the slow one the usual evidence (as w_fast / w_slow in the augmented particle
+      filter of Thrun, Burgard & Fox's *Probabilistic Robotics*). The slow one rises at the
+      fast rate and decays at the slow rate, so it remembers good tracking.
     * ``surprise_gain`` (0.15) / ``surprise_teleport`` (0.1): the kidnap mixing of a step is
       ``TransitionParams.teleport + surprise_gain * max(0, 1 - fast / slow)``, capped at
       ``surprise_teleport``: when the images stop matching where we think we are, mass is

@@ -1,9 +1,7 @@
 """``teachrepeat bench load``: many robots navigating at once against one real server.
 
 One server process (``teachrepeat serve`` on a fresh database file) is taught the corridor tour
-from its 111 real reference frames (4 places; each with a pose as if the corridor were straight,
-so that ``--server-env TEACHREPEAT_NAVIGATION='{"mcl.enabled": true}'`` measures Monte-Carlo
-localisation too). Then ``R`` robots are registered, each is sent to
+from its 111 real reference frames (4 places). Then ``R`` robots are registered, each is sent to
 a place (``goto``) and ``R`` client threads, each with its own HTTP connection, replay the
 corridor query frames in navigation mode at ``--rate`` Hz each (looping over the frames with
 increasing timestamps). Measured per run:
@@ -321,7 +319,6 @@ def one_run(
                     frames=ref,
                     marks=corridor_marks(),
                     progress=False,
-                    along_line=True,  # poses, for runs with Monte-Carlo localisation on
                 )
             tokens = {f"r{i:03d}": admin.register_robot(f"r{i:03d}").token for i in range(robots)}
         for name, token in tokens.items():

@@ -99,7 +99,6 @@ def _teach(server: ServerProcess, ref: Path, robots: int, goal: str) -> dict[str
                 frames=ref,
                 marks=corridor_marks(),
                 progress=False,
-                along_line=True,
             )
         tokens = {f"r{i:03d}": admin.register_robot(f"r{i:03d}").token for i in range(robots)}
     for name, token in tokens.items():

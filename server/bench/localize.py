@@ -42,12 +42,10 @@ import numpy.typing as npt
 
 from server.bench.common import DESCRIPTOR_CHOICES, stats, write_json
 from server.bench.localize_ambiguity import figures as ambiguity_figures
-from server.bench.localize_ambiguity import localiser
 from server.threads import pin_threads
 
 if TYPE_CHECKING:
     from server.belief.learning import FilterStep
-    from server.belief.mcl import MonteCarloLocaliser
     from server.belief.model import Action, TransitionParams
     from server.belief.tracker import TrackerParams
     from server.domain import TourGraph
@@ -178,12 +176,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "once the change gate is open, interpolated from --likelihood-power as it opens: a "
         "number, 'navigation' (the default: navigation's own, 0.75) or 'none' "
         "(--likelihood-power at every frame; docs/localize.md)",
-    )
-    parser.add_argument(
-        "--mcl",
-        action="store_true",
-        help="also run Monte-Carlo localisation along the replayed route, laid on a line "
-        "(server/bench/localize_ambiguity.py), and report its error in metres",
     )
     parser.add_argument(
         "--query-every",
@@ -536,8 +528,6 @@ class Replay:
     light_change: list[float] = field(default_factory=list)
     """Per frame, the change evidence the tracker weighed the models with (1 with one model;
     :mod:`server.belief.appearance`)."""
-    mcl_xy: list[tuple[float, float]] = field(default_factory=list)
-    """Per frame, Monte-Carlo localisation's position (``--mcl``; docs/ambiguity.md)."""
     observations: list[Observation] = field(default_factory=list)
     """Per frame, what the engine said (to replay the tracker alone, ``--learn-transitions``)."""
     run: list[FilterStep] = field(default_factory=list)
@@ -577,18 +567,17 @@ def replay(
     tracker_params: TrackerParams,
     action_mode: str,
     progress: bool = True,
-    mcl: MonteCarloLocaliser | None = None,
     observations: Sequence[Observation] | None = None,
     advance_scale: FloatArray | None = None,
 ) -> Replay:
-    """Drive the query traversal through engine, tracker and policy (see the module doc);
-    with ``mcl``, Monte-Carlo localisation beside them. ``observations`` (one per query frame,
-    from an earlier replay's :attr:`Replay.observations`) skip the engine; ``advance_scale``
-    gives the belief model learned transitions (:mod:`server.belief.learning`)."""
+    """Drive the query traversal through engine, tracker and policy (see the module doc).
+    ``observations`` (one per query frame, from an earlier replay's
+    :attr:`Replay.observations`) skip the engine; ``advance_scale`` gives the belief model
+    learned transitions (:mod:`server.belief.learning`)."""
     from server.belief.appearance import familiarity
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
-    from server.navigation.runtime import preferred, related_states
+    from server.navigation.runtime import related_states
     from server.policy.costs import CostParams, cost_to_goal
     from server.policy.voting import decide
     from server.vision.features import extract
@@ -632,11 +621,6 @@ def replay(
         action = next_action(decision.action, action_mode)
         traj = tracker.smoothed()
         t4 = time.perf_counter()
-        if mcl is not None and observations is None:  # after the belief, outside the timings
-            # as in navigation: the scores of the appearance model the belief now trusts most
-            scores = preferred(sims, summary).image
-            pose = mcl.step(v=SPEED, w=0.0, dt=FRAME_DT, scores=scores)
-            out.mcl_xy.append((pose.x, pose.y))
         if traj is not None:
             # window entry j is step (i + 1) - (len - 1) + j; step s saw query frame s - 1
             first = i + 1 - (len(traj.fine) - 1)
@@ -954,7 +938,6 @@ class RunSettings:
     tracker: TrackerParams
     action: str
     learn_params: LearnParams = field(default_factory=lambda: _learn_params(0))
-    mcl: bool = False
     learn_transitions: bool = False
     tolerances: tuple[int, ...] = REPORT_TOLERANCES
 
@@ -1025,7 +1008,6 @@ def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
         transitions=settings.transitions,
         tracker_params=settings.tracker,
         action_mode=settings.action,
-        mcl=localiser(tour) if settings.mcl else None,
     )
     estimates = {"ir_only": res.ir_only, "tracker": res.tracker, "smoother": res.smoother}
     errs = {m: errors(res.query, estimates[m], plan.gt) for m in METHODS}
@@ -1084,9 +1066,7 @@ def direction_summary(
             res.query, res.localised_frames, plan.gt, tolerance
         ),
         "localised_fraction": float(np.mean([f is not None for f in res.localised_frames])),
-        **ambiguity_figures(
-            res.query, res.localised_frames, res.mcl_xy, plan.gt, tolerance, FRAME_DT
-        ),
+        **ambiguity_figures(res.query, res.localised_frames, plan.gt, tolerance, FRAME_DT),
         "weights": weights,
         "weights_used": [round(float(x), 4) for x in d.index.weights],
         "weight_blocks": [b for b, _ in signature_blocks(d.index.params.features)],
@@ -1176,7 +1156,6 @@ def run(args: argparse.Namespace) -> int:
         tracker_params,
         args.action,
         _learn_params(args.learn_changed),
-        mcl=args.mcl,
         learn_transitions=args.learn_transitions,
         tolerances=tuple(report_tolerances(int(args.tolerance))),
     )
@@ -1225,7 +1204,7 @@ def run(args: argparse.Namespace) -> int:
         result["halves"] = f["halves"]
     for key in ("converged_after", "stays_right_after", "max_wrong_localised_run"):
         result[key] = f[key]
-    for key in ("first_right_localised_s", "wrong_claims", "mcl"):
+    for key in ("first_right_localised_s", "wrong_claims"):
         if key in f:
             result[key] = f[key]
     result["localised_fraction"] = f["localised_fraction"]
@@ -1298,9 +1277,6 @@ def _print(r: dict[str, Any]) -> None:
             f"  first right 'localised' after {'-' if first is None else f'{first:.1f} s'}, "
             f"wrong claims {d['wrong_claims']}"
         )
-        if "mcl" in d:
-            m = d["mcl"]
-            line += f", MCL error p50 {m['median_error_m']:.2f} m p90 {m['p90_error_m']:.2f} m"
         print(line)
         if "learned_transitions" in d:
             from server.bench.localize_learn import print_figures

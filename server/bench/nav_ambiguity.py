@@ -1,7 +1,6 @@
 """Localisation figures of ``teachrepeat bench navigate`` (docs/ambiguity.md): how soon each
-trial's belief was rightly "localised" from its uniform start, its wrong claims, and with
-``--mcl`` the Monte-Carlo position error, from the rows the judge wrote
-(:mod:`robot_client.judge_localisation`)."""
+trial's belief was rightly "localised" from its uniform start and its wrong claims, from the
+rows the judge wrote (:mod:`robot_client.judge_localisation`)."""
 
 from __future__ import annotations
 
@@ -9,10 +8,6 @@ import math
 from typing import Any
 
 import numpy as np
-
-SETTLE_FRAMES = 100
-"""Frames of a task (10 s at the robot's 10 frames a second) before its ``settled`` MCL errors
-count."""
 
 
 def localisation_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -32,28 +27,4 @@ def localisation_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "wrong_claim_frames": sum(int(r.get("wrong_claim_frames", 0)) for r in rows),
         "disambiguating_frames": sum(int(r.get("disambiguating_frames", 0)) for r in rows),
         "separating_frames": sum(int(r.get("separating_frames", 0)) for r in rows),
-    }
-
-
-def mcl_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Monte-Carlo position error over every frame of every trial of the group (m): median,
-    p90, and the same over the frames after the first :data:`SETTLE_FRAMES` of each task (a
-    uniform start takes a while to settle), with the numbers of frames."""
-    every: list[float] = []
-    settled: list[float] = []
-    for r in rows:
-        errors = list(r.get("mcl_error_m", ()))
-        every += errors
-        settled += errors[SETTLE_FRAMES:]
-
-    def q(values: list[float], p: float) -> float | None:
-        return float(np.percentile(values, p)) if values else None
-
-    return {
-        "median_error_m": q(every, 50),
-        "p90_error_m": q(every, 90),
-        "frames": len(every),
-        "settled_median_error_m": q(settled, 50),
-        "settled_p90_error_m": q(settled, 90),
-        "settled_frames": len(settled),
     }

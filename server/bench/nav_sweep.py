@@ -332,10 +332,9 @@ def _tracer(
     robot: Any, out: list[dict[str, Any]], taught: Any = None
 ) -> Callable[[int, Any], None]:
     """A step hook that records the true pose, the command, the top beliefs, the belief over
-    appearance models, the change evidence, Monte-Carlo localisation's estimate (x, y,
-    theta, std_m, mode_mass; null when it does not run) and the path tracker's (edge id,
-    along, lateral, heading error, their standard deviations, locked, and the true distance
-    to that edge's taught path, from ``taught``; null when it tracks none)."""
+    appearance models, the change evidence and the path tracker's estimate (edge id, along,
+    lateral, heading error, their standard deviations, locked, and the true distance to that
+    edge's taught path, from ``taught``; null when it tracks none)."""
 
     def hook(step: int, result: Any) -> None:
         pose, c = robot.pose, result.command
@@ -372,18 +371,6 @@ def _tracer(
                 "appearance": [round(x, 3) for x in result.belief.appearance],
                 "light_change": round(result.belief.light_change, 3),
                 "path": tracked,
-                "mcl": None
-                if result.pose is None
-                else [
-                    round(v, 3)
-                    for v in (
-                        result.pose.x,
-                        result.pose.y,
-                        result.pose.theta,
-                        result.pose.std_m,
-                        result.pose.mode_mass,
-                    )
-                ],
             }
         )
 

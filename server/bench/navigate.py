@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from server.bench.common import stats, wilson_interval, write_json
-from server.bench.nav_ambiguity import localisation_summary, mcl_summary
+from server.bench.nav_ambiguity import localisation_summary
 
 if TYPE_CHECKING:
     from robot_client.sim.generate import GeneratedHome
@@ -133,13 +133,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(default {DEFAULT_CACHE})",
     )
     parser.add_argument("--no-cache", action="store_true", help="walk every tour afresh")
-    parser.add_argument(
-        "--mcl",
-        action="store_true",
-        help="run Monte-Carlo localisation beside the belief (--set mcl.enabled=true) and add "
-        "its position error against the simulator's truth to the JSON (mcl.median_error_m, "
-        "mcl.p90_error_m)",
-    )
 
 
 def _trial_list(text: str) -> frozenset[int]:
@@ -206,7 +199,6 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "failures_by_cause": {c: causes[c] for c in CAUSES_ORDER if causes[c]},
         "failures_by_behaviour": dict(sorted(behaviours.items())),
         **localisation_summary(rows),
-        **({"mcl": mcl_summary(rows)} if any(r.get("mcl_error_m") for r in rows) else {}),
         "tracking_error_m": tracking_summary(rows),
         "behaviour_share": behaviour_share(rows),
     }
@@ -257,9 +249,6 @@ def _localisation_line(label: str, s: dict[str, Any]) -> str:
         f"{'-' if first is None else f'{first:.1f} s'} (never {s['never_correct']}), wrong "
         f"claims {s['wrong_claims']} in {s['trials_with_wrong_claims']} trials"
     )
-    if "mcl" in s:
-        m = s["mcl"]
-        text += f", MCL error p50 {m['median_error_m']:.2f} m p90 {m['p90_error_m']:.2f} m"
     track = s.get("tracking_error_m") or {}
     if track.get("frames"):
         text += f", tracking error p50 {track['p50']:.2f} m p90 {track['p90']:.2f} m"
@@ -288,8 +277,6 @@ def run(args: argparse.Namespace) -> int:
     if args.record_all and args.record is None:
         print(f"{prog}: --record-all needs --record DIR (where to keep them)", file=sys.stderr)
         return 2
-    if args.mcl:
-        args.settings = [*args.settings, ("mcl.enabled", True)]
     if args.experience_runs < 0:
         print(f"{prog}: --experience-runs must be >= 0", file=sys.stderr)
         return 2

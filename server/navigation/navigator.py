@@ -10,11 +10,10 @@ behaviour state reaches the next).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from server.belief.mcl import MclEstimate, MonteCarloLocaliser
 from server.belief.model import Action, ActionKind
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation.arbiter import Avoid, arbitrate
@@ -87,8 +86,8 @@ def gave_up(events: frozenset[str]) -> str | None:
 @dataclass(frozen=True)
 class Step:
     """What one frame saw and decided. ``decision`` and ``outcome`` are ``None`` without a
-    task underway; ``mcl`` is the metric pose estimate when Monte-Carlo localisation runs;
-    ``path`` the pose relative to the taught path being tracked (topometric repeat)."""
+    task underway; ``path`` is the pose relative to the taught path being tracked
+    (topometric repeat)."""
 
     features: ImageFeatures
     similarity: Similarity
@@ -96,17 +95,7 @@ class Step:
     decision: Decision | None
     command: Command
     outcome: Outcome | None
-    mcl: MclEstimate | None = None
     path: PathEstimate | None = None
-
-
-def localiser(runtime: TourRuntime) -> MonteCarloLocaliser | None:
-    """The Monte-Carlo localiser of ``runtime``'s tour when it is enabled and every taught
-    image has a pose (a metric map of the taught paths), else ``None``."""
-    graph = runtime.graph
-    if not runtime.params.mcl.enabled or not graph.has_poses or graph.image_pose is None:
-        return None
-    return MonteCarloLocaliser(graph.image_pose, runtime.params.mcl)
 
 
 class Navigator:
@@ -122,7 +111,6 @@ class Navigator:
         self.last_timestamp: float | None = None
         self.previous: Outcome | None = None
         self.fresh = False  # a task has just started afresh: the next frame's dt is 0
-        self.mcl = localiser(runtime)  # beside the belief, never steering
         self.path: PathTracker | None = None  # the task's path tracker (topometric repeat)
 
     @property
@@ -146,8 +134,6 @@ class Navigator:
             self.tracker.reset()
             self.last_action = Action.do_nothing()
             self.previous, self.fresh = None, True
-            if self.mcl is not None:
-                self.mcl.reset()
 
     def resume(self, task: Task) -> None:
         """Carry on with ``task`` after a restart, keeping the belief as it was restored (how
@@ -167,7 +153,6 @@ class Navigator:
         self.tracker = Tracker(runtime.model, runtime.params.tracker)
         if old.shape == (runtime.model.n_fine,):
             self.tracker.set_belief(old, memory)
-        self.mcl = localiser(runtime)
         if self.task is not None:
             self.crew = Crew(runtime, self.task.goal)
             self.path = self._path_tracker()
@@ -184,9 +169,6 @@ class Navigator:
             step = self._idle(frame, dt)
         else:
             step = self._navigate(task, crew, frame, dt, wall)
-        if self.mcl is not None:
-            estimate = self.mcl.step(v=frame.v, w=frame.w, dt=dt, scores=step.similarity.image)
-            step = replace(step, mcl=estimate)
         self.last_action = step.command.action
         self.last_timestamp = frame.timestamp
         return step

@@ -12,7 +12,6 @@ from typing import Literal
 import numpy as np
 
 from server.belief.junctions import JunctionParams
-from server.belief.mcl import MclParams
 from server.belief.model import TransitionParams
 from server.belief.questions import QuestionParams
 from server.belief.tracker import TrackerParams
@@ -259,9 +258,6 @@ class NavigationParams:
       (:class:`AmbiguityParams`).
     * ``topometric``: following taught edges by the robot's pose relative to the taught path
       (:class:`server.navigation.pathtrack.TopometricParams`).
-    * ``mcl``: Monte-Carlo localisation over the taught images' poses, reported beside the
-      topological belief and never steering (:class:`server.belief.mcl.MclParams`; off by
-      default: it costs ~1 ms a frame and needs taught poses).
     """
 
     arrive_mass: float = 0.6
@@ -309,7 +305,6 @@ class NavigationParams:
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     topometric: TopometricParams = field(default_factory=TopometricParams)
-    mcl: MclParams = field(default_factory=MclParams)
     learning: LearningParams = field(default_factory=LearningParams)
     questions: QuestionParams = field(default_factory=QuestionParams)
 

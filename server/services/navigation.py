@@ -20,7 +20,6 @@ import numpy as np
 from server import schemas
 from server.belief.junctions import refine
 from server.belief.learning import TransitionCounts, advance_scale
-from server.belief.mcl import MclEstimate
 from server.belief.tracker import BeliefError, BeliefSummary, TrackerMemory
 from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
@@ -657,7 +656,6 @@ def frame_result(
         task=task,
         belief=belief_public(record.summary, graph),
         votes=votes,
-        pose=None if record.mcl is None else pose_public(record.mcl),
         disambiguation=disambiguation_public(record.decision, graph),
         path=None if record.path is None else path_public(record.path, graph),
     )
@@ -739,16 +737,6 @@ def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPub
         localised_state=localised,
         appearance=[round(float(x), 4) for x in summary.appearance],
         light_change=round(float(summary.light_change), 4),
-    )
-
-
-def pose_public(estimate: MclEstimate) -> schemas.PosePublic:
-    return schemas.PosePublic(
-        x=round(estimate.x, 4),
-        y=round(estimate.y, 4),
-        theta=round(estimate.theta, 4),
-        std_m=round(estimate.std_m, 4),
-        mode_mass=round(estimate.mode_mass, 4),
     )
 
 

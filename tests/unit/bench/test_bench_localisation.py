@@ -10,7 +10,7 @@ import pytest
 from robot_client.judge_localisation import LocalisationJudge
 from robot_client.sim import load_plan
 from server import schemas
-from server.bench.nav_ambiguity import SETTLE_FRAMES, localisation_summary, mcl_summary
+from server.bench.nav_ambiguity import localisation_summary
 
 PLAN = Path(__file__).resolve().parents[2] / "data" / "plans" / "two_rooms.json"
 
@@ -33,10 +33,7 @@ def _tour() -> schemas.TourGraphPublic:
 
 
 def _answer(
-    state: schemas.StateProbability | None,
-    *,
-    pose: tuple[float, float] | None = None,
-    between: int = 0,
+    state: schemas.StateProbability | None, *, between: int = 0
 ) -> schemas.NavigationFrameResult:
     return schemas.NavigationFrameResult(
         mode="navigating",
@@ -46,9 +43,6 @@ def _answer(
             top=[], entropy=0.0, localised=state is not None, localised_state=state
         ),
         votes={},
-        pose=None
-        if pose is None
-        else schemas.PosePublic(x=pose[0], y=pose[1], theta=0.0, std_m=0.1, mode_mass=1.0),
         disambiguation=None
         if not between
         else schemas.DisambiguationPublic(between=[], separating=between > 1),
@@ -71,35 +65,31 @@ def test_claims_are_judged_against_the_true_pose() -> None:
     assert judge.right(other, 3.9, 1.75, 0.0) is None  # no taught poses: not judged
 
 
-def test_first_right_claim_wrong_claims_and_mcl_errors() -> None:
+def test_first_right_claim_and_wrong_claims() -> None:
     judge = LocalisationJudge(load_plan(PLAN), _tour())
     frames = [
-        (10.0, None, None, 0),
-        (10.1, SOFA, (2.0, 1.75), 1),  # wrong: the robot is at the desk
-        (10.2, SOFA, (2.0, 1.75), 2),
-        (10.3, None, (1.9, 1.75), 0),
-        (10.4, SOFA, (1.8, 1.75), 0),  # a second wrong claim
-        (10.5, DESK, (1.8, 1.75), 0),  # right, 0.5 s after the start
+        (10.0, None, 0),
+        (10.1, SOFA, 1),  # wrong: the robot is at the desk
+        (10.2, SOFA, 2),
+        (10.3, None, 0),
+        (10.4, SOFA, 0),  # a second wrong claim
+        (10.5, DESK, 0),  # right, 0.5 s after the start
     ]
-    for t, state, pose, between in frames:
-        judge.observe(t, 1.8, 1.75, 0.0, _answer(state, pose=pose, between=between))
+    for t, state, between in frames:
+        judge.observe(t, 1.8, 1.75, 0.0, _answer(state, between=between))
     s = judge.summary()
     assert s["first_correct_s"] == pytest.approx(0.5)
     assert (s["wrong_claims"], s["wrong_claim_frames"]) == (2, 3)
     assert (s["disambiguating_frames"], s["separating_frames"]) == (2, 1)
-    assert s["mcl_error_m"] == pytest.approx((0.2, 0.2, 0.1, 0.0, 0.0))
 
 
 def test_summaries_of_a_group_of_trials() -> None:
     rows = [
-        {"first_correct_s": 4.0, "wrong_claims": 0, "mcl_error_m": (1.0,) * SETTLE_FRAMES},
-        {"first_correct_s": None, "wrong_claims": 2, "mcl_error_m": (0.2, 0.4)},
-        {"first_correct_s": 2.0, "wrong_claims": 1, "mcl_error_m": ()},
+        {"first_correct_s": 4.0, "wrong_claims": 0},
+        {"first_correct_s": None, "wrong_claims": 2},
+        {"first_correct_s": 2.0, "wrong_claims": 1},
     ]
     s = localisation_summary(rows)
     assert s["median_first_correct_s"] == 4.0 and s["mean_first_correct_s"] == 3.0
     assert (s["never_correct"], s["wrong_claims"], s["trials_with_wrong_claims"]) == (1, 3, 2)
     assert localisation_summary(rows[1:2])["median_first_correct_s"] is None
-    m = mcl_summary(rows)
-    assert m["frames"] == SETTLE_FRAMES + 2 and m["median_error_m"] == 1.0
-    assert m["settled_frames"] == 0 and m["settled_median_error_m"] is None

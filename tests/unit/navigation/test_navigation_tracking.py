@@ -35,7 +35,7 @@ def test_prediction_moves_by_the_odometry_and_never_grows_surer(
     assert np.linalg.det(P) >= np.linalg.det(cov) * (1 - 1e-9)
 
 
-def test_prediction_matches_a_naive_monte_carlo_for_a_straight_drive() -> None:
+def test_prediction_matches_sampled_poses_for_a_straight_drive() -> None:
     rng = np.random.default_rng(0)
     mean = np.zeros(3)
     cov = np.diag([0.01**2, 0.01**2, 0.05**2])

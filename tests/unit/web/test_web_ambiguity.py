@@ -1,4 +1,5 @@
-"""The dashboard's view of ambiguity: colours by entropy, the disambiguation and pose texts."""
+"""The dashboard's view of ambiguity: colours by entropy, the disambiguation text, a tour with
+taught poses drawn where it was taught."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import math
 
 import numpy as np
 
-from server.belief.mcl import MclEstimate
 from server.domain import Edge, Location, TourGraph
 from web.ambiguity import (
     AMBIGUOUS,
@@ -17,7 +17,7 @@ from web.ambiguity import (
     edge_entropy,
     entropy_colors,
     place_entropy,
-    pose_text,
+    step_lines,
 )
 
 
@@ -45,12 +45,11 @@ def test_entropies_per_edge_and_place_and_the_texts() -> None:
     assert text.startswith("Disambiguating between bedroom (0.50) and guest room (0.40)")
     assert "acting to tell them apart" in text
     assert disambiguation_text(((0, 0.9),), False, g) == ""
-    est = MclEstimate(1.0, 2.0, math.pi / 2, 0.3, 0.8, 0.5, np.zeros((0, 3)))
-    assert "x 1.00 m, y 2.00 m, heading 90 deg" in pose_text(est)
-    assert "off" in pose_text(None)
+    assert step_lines(((0, 0.5), (1, 0.4)), True, g) == f"\n\n{text}"
+    assert step_lines(((0, 0.9),), False, g) == ""
 
 
-def test_a_tour_with_taught_poses_is_drawn_where_it_was_taught_with_the_metric_pose() -> None:
+def test_a_tour_with_taught_poses_is_drawn_where_it_was_taught() -> None:
     from server.layout import graph_layout
     from web.imagery import top_down
 
@@ -63,8 +62,5 @@ def test_a_tour_with_taught_poses_is_drawn_where_it_was_taught_with_the_metric_p
     assert layout.odometry
     np.testing.assert_allclose(layout.places[:, :2], [[0.0, 0.0], [3.0, 0.0]])
     np.testing.assert_allclose(layout.edge_points[0][:, :2], poses[2:, :2])
-    plain = top_down(g, layout)
-    est = MclEstimate(1.5, 0.0, 0.0, 0.4, 0.9, 0.5, np.array([[1.4, 0.1, 0.0], [1.6, -0.1, 0.0]]))
-    drawn = top_down(g, layout, metric=est)
-    blue = np.all(drawn == (37, 99, 235), axis=2)
-    assert blue.any() and not np.all(plain == (37, 99, 235), axis=2).any()
+    drawn = top_down(g, layout, size=(200, 120))
+    assert drawn.shape == (120, 200, 3) and drawn.dtype == np.uint8
