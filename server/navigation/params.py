@@ -49,7 +49,7 @@ class AmbiguityParams:
       frames, and the robot turned back to searching each time instead of leaving. On since
       2026-11-29: on the office floor the first right "localised" came sooner (mean 32.4 ->
       19.3 s on the trials it was chosen on, 19.0 -> 10.7 s held out) and more trials arrived,
-      no home arrived less (docs/ambiguity.md 5.3). False: the behaviour before.
+      no home arrived less (docs/ambiguity.md 5.2). False: the behaviour before.
     * ``distinctiveness``: how every taught image's entropy is computed
       (:mod:`server.vision.distinctiveness`); always computed when a tour changes.
     """
