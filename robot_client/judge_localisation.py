@@ -1,8 +1,7 @@
 """How well a navigation trial localised, judged against the simulator's ground truth.
 
 The navigator never sees the truth; only this judge does. Per frame it reads what the server
-answered (is the belief "localised", on which state; whether the policy was separating
-hypotheses) and compares it with the true pose:
+answered (is the belief "localised", on which state) and compares it with the true pose:
 
 * a **location** is right when the robot stands within :data:`LOCATION_RADIUS_M` of the
   place (the plan's position of the place of that name), or when it is the nearest place to
@@ -15,8 +14,7 @@ hypotheses) and compares it with the true pose:
 
 Figures (:meth:`LocalisationJudge.summary`): the robot seconds from the task's start (a
 uniform belief) to the first frame localised on a right state, the number of wrong
-"localised" claims (runs of consecutive frames localised on a wrong state) and their frames,
-and the frames disambiguating and separating.
+"localised" claims (runs of consecutive frames localised on a wrong state) and their frames.
 """
 
 from __future__ import annotations
@@ -53,8 +51,6 @@ class LocalisationJudge:
         self.wrong_claims = 0
         self.wrong_frames = 0
         self.judged_frames = 0
-        self.disambiguating = 0
-        self.separating = 0
         self._wrong_run = False
 
     def right(
@@ -96,9 +92,6 @@ class LocalisationJudge:
             self.wrong_frames += 1
             self.wrong_claims += not self._wrong_run
         self._wrong_run = wrong
-        if result.disambiguation is not None:
-            self.disambiguating += 1
-            self.separating += result.disambiguation.separating
 
     def summary(self) -> dict[str, Any]:
         """The trial's localisation figures (keys of :class:`robot_client.trial.TrialResult`)."""
@@ -106,8 +99,6 @@ class LocalisationJudge:
             "first_correct_s": self.first_correct_s,
             "wrong_claims": self.wrong_claims,
             "wrong_claim_frames": self.wrong_frames,
-            "disambiguating_frames": self.disambiguating,
-            "separating_frames": self.separating,
         }
 
 

@@ -131,8 +131,6 @@ class TrialResult:
     first_correct_s: float | None = None  # from the start to the first right "localised"
     wrong_claims: int = 0  # runs of frames "localised" on a wrong state
     wrong_claim_frames: int = 0
-    disambiguating_frames: int = 0  # the belief held separated hypotheses
-    separating_frames: int = 0  # ... and the action was chosen to separate them
     # topometric repeat: metres from the robot to the true path of the edge it follows, on
     # every frame it follows one by its pose relative to the path (the simulator's truth)
     tracking_error_m: tuple[float, ...] = ()

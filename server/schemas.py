@@ -535,16 +535,6 @@ class PathPublic(_Model):
     theta: float = Field(description="The robot's heading in the edge's frame, radians.")
 
 
-class DisambiguationPublic(_Model):
-    """The belief holds two or more separated hypotheses: where they are, and whether the
-    action was chosen to tell them apart rather than by the votes (docs/ambiguity.md)."""
-
-    between: list[StateProbability] = Field(
-        description="The most likely state of each hypothesis, with the hypothesis' mass."
-    )
-    separating: bool
-
-
 class TaskPublic(_Model):
     id: int
     tour: int
@@ -564,9 +554,6 @@ class NavigationFrameResult(_Model):
     task: TaskPublic | None
     belief: BeliefPublic
     votes: dict[str, float] = Field(description="Vote mass of every action.")
-    disambiguation: DisambiguationPublic | None = Field(
-        default=None, description="Set while the belief holds separated hypotheses."
-    )
     path: PathPublic | None = Field(
         default=None,
         description="Where the robot is relative to the taught path it tracks (topometric "

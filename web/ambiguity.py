@@ -1,6 +1,5 @@
 """What the dashboard shows of ambiguity (docs/ambiguity.md): the distinctiveness of the taught
-images as colours along the edges, the belief's separated hypotheses when the policy is
-disambiguating, and the pose relative to the taught path the robot tracks.
+images as colours along the edges, and the pose relative to the taught path the robot tracks.
 
 Pure functions from the core's values to colours, points and markdown; the dashboard places
 them (kept apart from it so that its layout can change without touching these)."""
@@ -85,20 +84,6 @@ def distinctiveness_text(graph: TourGraph | None) -> str:
     )
 
 
-def disambiguation_text(
-    hypotheses: tuple[tuple[int, float], ...], separating: bool, graph: TourGraph
-) -> str:
-    """Markdown: between which places the belief is split, and whether the action was chosen
-    to tell them apart; empty when the belief is not split."""
-    if len(hypotheses) < 2:
-        return ""
-    names = " and ".join(
-        f"{graph.state_name(s)} ({p:.2f})" for s, p in hypotheses if 0 <= s < graph.n_states
-    )
-    how = "acting to tell them apart" if separating else "the voted action already tells them apart"
-    return f"Disambiguating between {names}: {how}"
-
-
 def path_text(est: PathEstimate, graph: TourGraph) -> str:
     """Markdown line of the path tracker's estimate: which path, where along and beside it,
     how sure, and whether it steers by it."""
@@ -112,16 +97,7 @@ def path_text(est: PathEstimate, graph: TourGraph) -> str:
     )
 
 
-def step_lines(
-    hypotheses: tuple[tuple[int, float], ...],
-    separating: bool,
-    graph: TourGraph,
-    path: PathEstimate | None = None,
-) -> str:
-    """The markdown a navigating step adds: the disambiguation (when the belief is split) and
-    the pose relative to the taught path (while the path tracker tracks one); empty
-    otherwise."""
-    lines = [disambiguation_text(hypotheses, separating, graph)]
-    if path is not None:
-        lines.append(path_text(path, graph))
-    return "".join(f"\n\n{line}" for line in lines if line)
+def step_lines(graph: TourGraph, path: PathEstimate | None = None) -> str:
+    """The markdown a navigating step adds: the pose relative to the taught path (while the
+    path tracker tracks one); empty otherwise."""
+    return "" if path is None else f"\n\n{path_text(path, graph)}"

@@ -661,9 +661,7 @@ class Dashboard:
             target_caption = f"target image #{int(graph.image_ids[step.target_image])}"
         images = side_by_side(camera, best, (f"camera  t={step.timestamp:.1f} s", best_caption))
         target_img = captioned(target, target_caption, height=120)
-        action_md = action_text(step, graph) + step_lines(
-            step.hypotheses, step.separating, graph, step.path
-        )
+        action_md = action_text(step, graph) + step_lines(graph, step.path)
         votes_md = votes_text(step.votes)
         along = along_edge_data(step, graph)
         over = over_time_data(

@@ -76,8 +76,6 @@ class StepView:
     appearance: tuple[float, ...] = (1.0,)  # belief over the engine's appearance models
     light_change: float = 1.0  # the frame's change evidence (server.belief.appearance)
     model_weights: tuple[tuple[float, ...], ...] = ()  # each model's signature block weights
-    hypotheses: tuple[tuple[int, float], ...] = ()  # separated hypotheses (disambiguation)
-    separating: bool = False  # the action was chosen to tell them apart
     path: PathEstimate | None = None  # the pose relative to the taught path being tracked
 
 
@@ -486,7 +484,5 @@ def _step_view(record: StepRecord, graph: TourGraph, *, index: int) -> StepView:
         step_ms=float(record.step_ms),
         appearance=tuple(float(x) for x in summary.appearance),
         light_change=float(summary.light_change),
-        hypotheses=() if decision is None else decision.hypotheses,
-        separating=False if decision is None else decision.separating,
         path=record.path,
     )

@@ -14,7 +14,7 @@ def localisation_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Per group of trial rows: the median robot seconds to the first right "localised" (a
     trial never rightly localised counts as infinitely late: ``None`` when half of them
     were), how many never were, the wrong claims (runs of frames localised on a wrong state),
-    the trials with any and their frames, and the frames spent disambiguating / separating."""
+    the trials with any and their frames."""
     firsts = [math.inf if r.get("first_correct_s") is None else r["first_correct_s"] for r in rows]
     median = float(np.median(firsts)) if firsts else math.nan
     finite = [f for f in firsts if math.isfinite(f)]
@@ -25,6 +25,4 @@ def localisation_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "wrong_claims": sum(int(r.get("wrong_claims", 0)) for r in rows),
         "trials_with_wrong_claims": sum(int(r.get("wrong_claims", 0)) > 0 for r in rows),
         "wrong_claim_frames": sum(int(r.get("wrong_claim_frames", 0)) for r in rows),
-        "disambiguating_frames": sum(int(r.get("disambiguating_frames", 0)) for r in rows),
-        "separating_frames": sum(int(r.get("separating_frames", 0)) for r in rows),
     }

@@ -17,7 +17,6 @@ import numpy.typing as npt
 
 from server.belief.model import Action, ActionKind
 from server.belief.tracker import BeliefSummary, Tracker
-from server.navigation.ambiguity import separate
 from server.navigation.command import Command, Proposal
 from server.navigation.pathtrack import PathEstimate, PathTracker
 from server.navigation.runtime import TourRuntime, preferred
@@ -229,11 +228,9 @@ def perceive(
         summary.belief,
         goal,
         runtime.costs(goal),
-        runtime.policy_params,
+        runtime.params.policy,
         hold_goal=hold_goal,
     )
-    if p.ambiguity.disambiguate:
-        decision = separate(runtime, summary.belief, decision, goal, hold_goal=hold_goal)
     if path is not None:
         decision = committed(
             runtime, summary.belief, decision, goal, path.estimate, hold_goal, similarity.image
@@ -315,7 +312,7 @@ def committed(
     mass = float(belief[lo:hi].sum() + belief[e.source] + belief[e.target])
     if mass < runtime.params.topometric.commit_mass:
         return decision
-    plan = plan_for(g, goal, runtime.costs(goal), runtime.policy_params, hold_goal=hold_goal)
+    plan = plan_for(g, goal, runtime.costs(goal), runtime.params.policy, hold_goal=hold_goal)
     k = estimate.index
     if plan.vote[lo + k] != NAVIGATE_CODE:
         return decision

@@ -18,7 +18,6 @@ from server.belief.tracker import TrackerParams
 from server.motion import MotionParams
 from server.navigation.pathtrack import TopometricParams
 from server.policy.costs import CostParams
-from server.policy.disambiguation import DisambiguationParams
 from server.policy.voting import PolicyParams
 from server.vision.distinctiveness import DistinctivenessParams
 from server.vision.features import FeatureParams
@@ -32,16 +31,10 @@ thumbnail."""
 
 @dataclass(frozen=True)
 class AmbiguityParams:
-    """Ambiguity-aware navigation (seed 000, docs/ambiguity.md).
+    """Ambiguity-aware navigation (seed 000, docs/ambiguity.md). Least-ambiguous routes and
+    active disambiguation were measured three times with no gain and removed (2026-12-02,
+    docs/ambiguity.md section 2).
 
-    * ``route_weight`` (0, 1/nat): the trade-off of least-ambiguous routes, lambda: every step
-      of an edge costs ``1 + lambda x`` the mean entropy of its two images times its duration
-      (:mod:`server.policy.costs`; it sets ``CostParams.ambiguity_weight`` of both the cost to
-      go and the votes). 0 = time only, today's behaviour. Off by default: not shown to help
-      in the closed loop (docs/ambiguity.md).
-    * ``disambiguate`` (False): when the belief holds two or more separated hypotheses, act to
-      separate them (:mod:`server.policy.disambiguation`, ``disambiguation`` its settings).
-      Off by default: not shown to help in the closed loop (docs/ambiguity.md).
     * ``alike_departures`` (True): a robot driving onto the edge it found carries on when
       the policy switches to another edge whose images along the same stretch look like the
       frame as well (:class:`server.navigation.behaviours.FindEdge`): leaving one of several
@@ -54,15 +47,8 @@ class AmbiguityParams:
       (:mod:`server.vision.distinctiveness`); always computed when a tour changes.
     """
 
-    route_weight: float = 0.0
-    disambiguate: bool = False
     alike_departures: bool = True
     distinctiveness: DistinctivenessParams = field(default_factory=DistinctivenessParams)
-    disambiguation: DisambiguationParams = field(default_factory=DisambiguationParams)
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.route_weight) and self.route_weight >= 0):
-            raise ValueError(f"route_weight must be finite and >= 0, got {self.route_weight}")
 
 
 @dataclass(frozen=True)
@@ -254,7 +240,7 @@ class NavigationParams:
       state under changed light agreed with the unchanged one for 0.78 of 120 random poses vs
       0.33) but make places less distinct in unchanged light (7/20 with 7 wrong arrivals vs
       15/20 with 1-2), so they are an option, not the default.
-    * ``ambiguity``: distinctiveness, least-ambiguous routes and active disambiguation
+    * ``ambiguity``: distinctiveness and carrying on along a look-alike departure
       (:class:`AmbiguityParams`).
     * ``topometric``: following taught edges by the robot's pose relative to the taught path
       (:class:`server.navigation.pathtrack.TopometricParams`).

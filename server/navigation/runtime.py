@@ -20,7 +20,6 @@ from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate, PathTracker, path_likelihood
 from server.policy.costs import cost_to_goal
-from server.policy.disambiguation import fine_profiles
 from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
 from server.vision.homing import HomingParams, ZoomLevel, Zooms, match_features, taught_zoom_levels
@@ -70,15 +69,6 @@ class TourRuntime:
         self.model: BeliefModel = build_model(
             graph, params.transitions, advance_scale=advance_scale
         )
-        # the one trade-off of least-ambiguous routes, for the cost to go and the votes alike
-        weight = params.ambiguity.route_weight
-        self.cost_params = replace(params.costs, ambiguity_weight=weight)
-        self.policy_params = replace(
-            params.policy, costs=replace(params.policy.costs, ambiguity_weight=weight)
-        )
-        # (n_fine, n_states) the view at each fine state against every state; set with the
-        # distinctiveness when disambiguation needs it
-        self.fine_profile: npt.NDArray[np.float32] | None = None
         self._costs = lru_cache(maxsize=64)(self._cost_to_goal)
         # canonical index of edge e's first image
         self._edge_first = graph.n_images - int(graph.edge_offsets[-1]) + graph.edge_offsets
@@ -324,7 +314,7 @@ class TourRuntime:
         return out
 
     def distinctiveness(self) -> Distinctiveness:
-        """Every image's distinctiveness and the views' similarity profiles, computed now
+        """Every image's distinctiveness, computed now
         (:mod:`server.vision.distinctiveness`; one engine query per sampled image: call it
         once the index has its weights)."""
         return image_entropy(
@@ -334,16 +324,11 @@ class TourRuntime:
             self.params.ambiguity.distinctiveness,
         )
 
-    def attach_distinctiveness(
-        self, entropy: npt.ArrayLike, computed: Distinctiveness | None = None
-    ) -> None:
+    def attach_distinctiveness(self, entropy: npt.ArrayLike) -> None:
         """Give the tour's images their ``(n_images,)`` entropies (stored or just computed,
-        :mod:`server.vision.distinctiveness`), and with ``computed`` the views' similarity
-        profiles disambiguation needs. Part of building the runtime, before it is shared."""
+        :mod:`server.vision.distinctiveness`). Part of building the runtime, before it is
+        shared."""
         self.graph = replace(self.graph, image_entropy=np.asarray(entropy, dtype=np.float64))
-        if computed is not None:
-            self.fine_profile = fine_profiles(self.graph, computed.profile, computed.row_of)
-        self._costs.cache_clear()
 
     def moving_from(self, edge: int, k: int) -> int | None:
         """Index of the first image of ``edge`` at or after ``k`` taught while moving (``None``
@@ -352,7 +337,7 @@ class TourRuntime:
         return None if nxt < 0 else nxt
 
     def _cost_to_goal(self, goal: int) -> FloatArray:
-        return cost_to_goal(self.graph, goal, self.cost_params)
+        return cost_to_goal(self.graph, goal, self.params.costs)
 
     def costs(self, goal: int) -> FloatArray:
         """``(n_locations,)`` seconds to reach location ``goal`` from every location."""

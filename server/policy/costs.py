@@ -3,16 +3,9 @@
 An edge costs its teaching duration (last timestamp minus first) plus the time to turn into it at
 its origin; the cost of a location is the cheapest sum of edge costs to the goal, found with
 ``networkx`` Dijkstra on the reversed graph. Edges without images cannot be followed and are left
-out. Parallel edges (the same pair taught twice) keep the cheaper one.
-
-**Least-ambiguous routes** (seed 000, section V): with ``CostParams.ambiguity_weight`` (lambda,
-1/nat) above 0 and the graph's image entropies known (``TourGraph.image_entropy``), each step of
-an edge between consecutive images k and k + 1 costs ``dt_k * (1 + lambda * (H_k + H_{k+1}) /
-2)`` seconds instead of ``dt_k``: the link weight of 000 (eq. 2, the mean entropy of its two
-images) as a surcharge on time. A stretch of look-alike images (H ~ log 2 for two look-alikes)
-then costs ``1 + 0.69 lambda`` times its duration, and Dijkstra prefers a longer route through
-distinctive images when it is less than that much longer. At 0 (the default) every cost is
-exactly what it was without it.
+out. Parallel edges (the same pair taught twice) keep the cheaper one. Costs are time only: a
+surcharge on look-alike images (least-ambiguous routes, seed 000) was measured with no gain and
+removed (docs/ambiguity.md section 2).
 
 This module imports NumPy, networkx and :mod:`server.domain` only.
 """
@@ -26,7 +19,7 @@ import networkx as nx
 import numpy as np
 import numpy.typing as npt
 
-from server.domain import Edge, TourGraph
+from server.domain import TourGraph
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -36,7 +29,6 @@ __all__ = [
     "edge_costs",
     "edge_remaining_s",
     "route_graph",
-    "step_weights",
 ]
 
 
@@ -51,19 +43,15 @@ class CostParams:
     * ``turn_back`` (0.5): fraction of a full turn to turn round on an edge (180 degrees).
     * ``min_edge_s`` (1.0 s): lower bound of an edge's traversal time (edges taught with missing
       or degenerate timestamps still cost something).
-    * ``ambiguity_weight`` (0, 1/nat): lambda of the least-ambiguous routes (module docstring):
-      how many times its duration a stretch of images of entropy 1 nat costs on top. 0 = time
-      only. Navigation sets it from ``AmbiguityParams.route_weight``.
     """
 
     rotation_s: float = 8.0
     turn_into_edge: float = 0.5
     turn_back: float = 0.5
     min_edge_s: float = 1.0
-    ambiguity_weight: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("rotation_s", "turn_into_edge", "turn_back", "min_edge_s", "ambiguity_weight"):
+        for name in ("rotation_s", "turn_into_edge", "turn_back", "min_edge_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"CostParams.{name} must be finite and >= 0, got {value}")
@@ -77,45 +65,17 @@ class CostParams:
         return self.turn_back * self.rotation_s
 
 
-def step_weights(
-    graph: TourGraph, params: CostParams | None = None
-) -> tuple[FloatArray, ...] | None:
-    """Per edge, ``(n_images - 1,)`` the factor ``1 + lambda (H_k + H_{k+1}) / 2`` of each
-    step between consecutive images (module docstring); ``None`` when ``ambiguity_weight``
-    is 0 or the graph's entropies are not all known (then every step counts its time only).
-    """
-    p = params if params is not None else CostParams()
-    if p.ambiguity_weight == 0 or not graph.has_entropy or graph.image_entropy is None:
-        return None
-    h = graph.image_entropy[graph.n_images - int(graph.edge_offsets[-1]) :]
-    out = []
-    for j in range(graph.n_edges):
-        hj = h[int(graph.edge_offsets[j]) : int(graph.edge_offsets[j + 1])]
-        out.append(1.0 + p.ambiguity_weight * 0.5 * (hj[:-1] + hj[1:]))
-    return tuple(out)
-
-
-def _weighted_dt(e: Edge, factor: FloatArray) -> FloatArray:
-    """``(n_images - 1,)`` weighted seconds of each step (missing or backward steps: 0)."""
-    dts = np.diff(np.asarray(e.timestamps, dtype=np.float64))
-    return np.where(np.isfinite(dts) & (dts > 0), dts, 0.0) * factor
-
-
 def edge_costs(graph: TourGraph, params: CostParams | None = None) -> FloatArray:
     """``(n_edges,)`` seconds to take each edge from its origin: turn into it, then follow it
-    (each step weighted by its images' entropy with ``ambiguity_weight`` > 0).
 
     ``inf`` for edges with no images (they cannot be followed).
     """
     p = params if params is not None else CostParams()
-    weights = step_weights(graph, p)
     out = np.full(graph.n_edges, np.inf)
     for j, e in enumerate(graph.edges):
         if e.n_images == 0:
             continue
         duration = e.duration if math.isfinite(e.duration) else 0.0
-        if weights is not None and len(e.timestamps) == e.n_images:
-            duration = float(_weighted_dt(e, weights[j]).sum())
         out[j] = max(duration, p.min_edge_s) + p.turn_into_edge_s
     return out
 
@@ -123,14 +83,12 @@ def edge_costs(graph: TourGraph, params: CostParams | None = None) -> FloatArray
 def edge_remaining_s(graph: TourGraph, params: CostParams | None = None) -> FloatArray:
     """``(n_edge_images,)`` seconds from each edge image to the end of its edge (no turning).
 
-    From the teaching timestamps (each step weighted by its images' entropy with
-    ``ambiguity_weight`` > 0); when they are missing or degenerate, proportional to the
+    From the teaching timestamps; when they are missing or degenerate, proportional to the
     remaining fraction of the edge's (``min_edge_s``-bounded) duration.
     """
     p = params if params is not None else CostParams()
-    weights = step_weights(graph, p)
     parts: list[FloatArray] = []
-    for j, e in enumerate(graph.edges):
+    for e in graph.edges:
         n = e.n_images
         if n == 0:
             continue
@@ -138,13 +96,7 @@ def edge_remaining_s(graph: TourGraph, params: CostParams | None = None) -> Floa
         total = max(e.duration if math.isfinite(e.duration) else 0.0, p.min_edge_s)
         frac_left = (n - 1 - np.arange(n)) / max(n - 1, 1)
         good = len(t) == n and np.all(np.isfinite(t)) and t[-1] - t[0] >= p.min_edge_s
-        if weights is not None and good:
-            steps = _weighted_dt(e, weights[j])
-            rem = np.concatenate([np.cumsum(steps[::-1])[::-1], [0.0]])
-        elif good:
-            rem = np.maximum(t[-1] - t, 0.0)
-        else:
-            rem = frac_left * total
+        rem = np.maximum(t[-1] - t, 0.0) if good else frac_left * total
         parts.append(rem.astype(np.float64))
     return np.concatenate(parts) if parts else np.zeros(0)
 

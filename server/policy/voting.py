@@ -80,28 +80,18 @@ class Decision:
       most likely one (001 Section 7.2); otherwise None.
     * ``votes``: vote mass per action kind (sums to 1 over the four kinds).
     * ``active_edge``: for Navigate, the edge with the most belief among Navigate voters.
-    * ``hypotheses``: ``(most likely upper state, mass)`` of each separated hypothesis when
-      disambiguation looked at a belief holding two or more (:mod:`.disambiguation`).
-    * ``separating``: the action was chosen to separate them instead of the voted one.
     """
 
     action: Action
     target_image: int | None
     votes: dict[ActionKind, float]
     active_edge: int | None
-    hypotheses: tuple[tuple[int, float], ...] = ()
-    separating: bool = False
 
 
 @dataclass(frozen=True)
 class VotePlan:
     """Per-fine-state votes for one goal: ``vote`` is ``(n_fine,) int`` codes
-    (0 Navigate, 1 DoNothing, 2 Explore, 3 + e RotateAndFindEdge(e)).
-
-    ``cost`` is ``(n_fine,)`` the seconds to the goal of the action each fine state votes for
-    (0 at a goal that holds, ``inf`` where nothing reaches the goal), ``go_on`` ``(n_fine,)``
-    the seconds of driving on to the goal from each edge image (``inf`` at locations): what
-    :mod:`server.policy.disambiguation` weighs a detour against."""
+    (0 Navigate, 1 DoNothing, 2 Explore, 3 + e RotateAndFindEdge(e))."""
 
     goal: int
     vote: IntArray
@@ -110,8 +100,6 @@ class VotePlan:
     n_edges: int
     offsets: IntArray
     n_valid_states: int
-    cost: FloatArray = field(default_factory=lambda: np.zeros(0))
-    go_on: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 def build_vote_plan(
@@ -141,13 +129,10 @@ def build_vote_plan(
     remaining = edge_remaining_s(graph, p.costs)
     revs = reverse_edges(graph)
     vote = np.full(graph.n_fine, EXPLORE, dtype=np.int64)
-    fine_cost = np.full(graph.n_fine, np.inf)
-    fine_go_on = np.full(graph.n_fine, np.inf)
     # locations
     for k in range(L):
         if k == goal:
             vote[k] = DO_NOTHING
-            fine_cost[k] = 0.0
             if hold_goal:
                 continue
         best, best_c = -1, math.inf
@@ -158,7 +143,6 @@ def build_vote_plan(
                     best, best_c = j, c
         if best >= 0:
             vote[k] = ROTATE0 + best
-            fine_cost[k] = best_c
     # edge images
     for j, e in enumerate(graph.edges):
         n = e.n_images
@@ -182,8 +166,6 @@ def build_vote_plan(
         v = np.where(go_on <= back, NAVIGATE, ROTATE0 + back_edge)
         v = np.where(np.isinf(go_on) & np.isinf(back), EXPLORE, v)
         vote[L + lo : L + hi] = v
-        fine_cost[L + lo : L + hi] = np.minimum(go_on, back)
-        fine_go_on[L + lo : L + hi] = go_on
     n_valid = L + sum(1 for e in graph.edges if e.n_images > 0)
     return VotePlan(
         goal=goal,
@@ -193,8 +175,6 @@ def build_vote_plan(
         n_edges=graph.n_edges,
         offsets=offsets,
         n_valid_states=n_valid,
-        cost=fine_cost,
-        go_on=fine_go_on,
     )
 
 

@@ -26,7 +26,6 @@ from server.errors import Conflict, DomainError, Invalid, NotFound
 from server.imaging import ImageLimits, decode_jpeg
 from server.navigation import Command, NavigationParams, Task, TaskState, TourRuntime
 from server.navigation.pathtrack import PathEstimate
-from server.policy.voting import Decision
 from server.session import RobotSession, StepRecord
 from server.storage.repo import NavigationRow, Repo
 from server.vision.features import FeatureParams, ImageFeatures, extract
@@ -287,16 +286,15 @@ class NavigationService:
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else
-        computed now (one engine query per sampled image) and stored; computed anyway when
-        disambiguation needs the views' similarity profiles. A tour refined by junctions uses
-        the taught images' entropies and stores none of its own."""
+        computed now (one engine query per sampled image) and stored. A tour refined by
+        junctions uses the taught images' entropies and stores none of its own."""
         graph = rt.graph
         stored = graph.has_entropy and self.repo.entropy_images(tour_id) == rt.taught_images
-        if stored and not self.params.ambiguity.disambiguate:
+        if stored:
             return
         found = rt.distinctiveness()
-        rt.attach_distinctiveness(found.entropy, found)
-        if not stored and not rt.mapped:
+        rt.attach_distinctiveness(found.entropy)
+        if not rt.mapped:
             ids = [int(i) for i in graph.image_ids]
             self.repo.set_entropies(tour_id, list(zip(ids, found.entropy.tolist(), strict=True)))
 
@@ -656,7 +654,6 @@ def frame_result(
         task=task,
         belief=belief_public(record.summary, graph),
         votes=votes,
-        disambiguation=disambiguation_public(record.decision, graph),
         path=None if record.path is None else path_public(record.path, graph),
     )
 
@@ -737,17 +734,6 @@ def belief_public(summary: BeliefSummary, graph: TourGraph) -> schemas.BeliefPub
         localised_state=localised,
         appearance=[round(float(x), 4) for x in summary.appearance],
         light_change=round(float(summary.light_change), 4),
-    )
-
-
-def disambiguation_public(
-    decision: Decision | None, graph: TourGraph
-) -> schemas.DisambiguationPublic | None:
-    if decision is None or not decision.hypotheses:
-        return None
-    return schemas.DisambiguationPublic(
-        between=[state_public(graph, s, p) for s, p in decision.hypotheses],
-        separating=decision.separating,
     )
 
 

@@ -21,9 +21,8 @@ image's own spot scores high, high when look-alikes elsewhere score as high as i
 4. Images between two sampled ones on an edge take the linear interpolation of their
    entropies along the edge.
 
-:func:`image_entropy` returns the ``(n_images,)`` entropies and the per-state similarity
-profiles of the sampled images (for :mod:`server.policy.disambiguation`). Everything here works
-on per-image arrays in the index's order (the caller derives them from its tour graph:
+:func:`image_entropy` returns the ``(n_images,)`` entropies. Everything here works on per-image
+arrays in the index's order (the caller derives them from its tour graph:
 :meth:`server.navigation.TourRuntime.distinctiveness`).
 
 This module imports NumPy and :mod:`server.vision` only.
@@ -88,17 +87,10 @@ class Distinctiveness:
 
     * ``entropy``: ``(n_images,) float64`` nats, canonical image order.
     * ``sampled``: ``(m,) int64`` canonical indices of the images that were queried.
-    * ``profile``: ``(m, n_states) float32`` each sampled image's best score in every upper
-      state (its own state included: 1 or nearly), the expected view of that spot against
-      the tour.
-    * ``row_of``: ``(n_images,) int64`` the row of ``profile`` that stands for each image
-      (its own, or the nearest sampled image of its state).
     """
 
     entropy: FloatArray
     sampled: IntArray
-    profile: npt.NDArray[np.float32]
-    row_of: IntArray
 
 
 @dataclass(frozen=True)
@@ -174,8 +166,8 @@ def retrieval_entropy(
     state_starts: npt.ArrayLike,
     *,
     sharpness: float = 4.0,
-) -> tuple[FloatArray, FloatArray]:
-    """Entropy (nats) of the score distribution of each query, and its per-state profile.
+) -> FloatArray:
+    """Entropy (nats) of the score distribution of each query.
 
     Args:
         scores: ``(m, n)`` the engine's similarity of every image (canonical order, >= 0) to
@@ -186,10 +178,9 @@ def retrieval_entropy(
         sharpness: exponent of the scores (see :class:`DistinctivenessParams`).
 
     Returns:
-        ``(m,)`` entropies and ``(m, n_runs)`` the best score per state (over all its images).
-        The bins are the best score in the own spot, then per state the best score outside
-        the spot; ``p = bin ** sharpness``, normalised. A query whose bins are all 0 has
-        entropy 0.
+        ``(m,)`` entropies. The bins are the best score in the own spot, then per state the
+        best score outside the spot; ``p = bin ** sharpness``, normalised. A query whose bins
+        are all 0 has entropy 0.
     """
     s = np.asarray(scores, dtype=np.float64)
     spot = np.asarray(same_spot, dtype=bool)
@@ -205,8 +196,7 @@ def retrieval_entropy(
     p = np.divide(bins, total, out=np.zeros_like(bins), where=total > 0)
     logp = np.log(p, out=np.zeros_like(p), where=p > 0)
     entropy: FloatArray = -(p * logp).sum(axis=1)
-    profile: FloatArray = np.maximum.reduceat(s, starts, axis=1) if s.shape[1] else s
-    return entropy, profile
+    return entropy
 
 
 def sample_images(layout: ImageLayout, spacing_m: float) -> IntArray:
@@ -231,18 +221,13 @@ def sample_images(layout: ImageLayout, spacing_m: float) -> IntArray:
     return np.concatenate(picks)
 
 
-def interpolate(
-    layout: ImageLayout, sampled: IntArray, values: FloatArray
-) -> tuple[FloatArray, IntArray]:
+def interpolate(layout: ImageLayout, sampled: IntArray, values: FloatArray) -> FloatArray:
     """Values of every image from those of the sampled ones (edge images: linear in metres
-    along the edge between the sampled images of that edge), and the sampled row nearest
-    each image along its state."""
+    along the edge between the sampled images of that edge)."""
     n = layout.n_images
     along = layout.along
     out = np.empty(n)
-    row_of = np.empty(n, dtype=np.int64)
     out[sampled] = values
-    row_of[sampled] = np.arange(len(sampled))
     state = layout.state
     for s in np.unique(state):
         idx = np.flatnonzero(state == s)
@@ -253,14 +238,8 @@ def interpolate(
         order = np.argsort(pos, kind="stable")
         pos, rows = pos[order], rows[order]
         out[idx] = np.interp(along[idx], pos, values[rows])
-        nearest = np.clip(np.searchsorted(pos, along[idx]), 1, max(len(pos) - 1, 1))
-        left = np.maximum(nearest - 1, 0)
-        right = np.minimum(nearest, len(pos) - 1)
-        take_left = np.abs(along[idx] - pos[left]) <= np.abs(pos[right] - along[idx])
-        row_of[idx] = rows[np.where(take_left, left, right)]
         out[sampled[rows]] = values[rows]
-        row_of[sampled[rows]] = rows
-    return out, row_of
+    return out
 
 
 def image_entropy(
@@ -282,12 +261,7 @@ def image_entropy(
             f"for a tour of {n} images"
         )
     if n == 0:
-        return Distinctiveness(
-            np.zeros(0),
-            np.zeros(0, np.int64),
-            np.zeros((0, layout.n_states), np.float32),
-            np.zeros(0, np.int64),
-        )
+        return Distinctiveness(np.zeros(0), np.zeros(0, np.int64))
     near_src, near_tgt = layout.near_places(p.near_m)
     sampled = sample_images(layout, p.spacing_m)
     state = layout.state
@@ -296,8 +270,5 @@ def image_entropy(
     )
     spot = spot_mask(sampled, state, layout.along, near_src, near_tgt, p.near_m)
     starts = np.flatnonzero(np.concatenate([[True], state[1:] != state[:-1]]))
-    entropy, runs = retrieval_entropy(scores, spot, starts, sharpness=p.sharpness)
-    profile = np.zeros((len(sampled), layout.n_states), dtype=np.float32)
-    profile[:, state[starts]] = runs
-    values, row_of = interpolate(layout, sampled, entropy)
-    return Distinctiveness(values, sampled, profile, row_of)
+    entropy = retrieval_entropy(scores, spot, starts, sharpness=p.sharpness)
+    return Distinctiveness(interpolate(layout, sampled, entropy), sampled)

@@ -1,5 +1,5 @@
-"""Distinctiveness and taught poses in GET /tours/{id}, disambiguation in the answers to
-frames, on a tour taught from the real corridor frames with poses."""
+"""Distinctiveness and taught poses in GET /tours/{id}, and the answers to frames while
+navigating, on a tour taught from the real corridor frames with poses."""
 
 from __future__ import annotations
 
@@ -28,13 +28,12 @@ def api_with(tmp_path: Path) -> Iterator[Api]:
         db=tmp_path / "api.sqlite",
         admin_token=SecretStr(ADMIN_TOKEN),
         dashboard_port=None,
-        navigation={"ambiguity.disambiguate": True},
     )
     with TestClient(create_app(settings)) as client:
         yield Api(client, tmp_path / "api.sqlite", {"Authorization": f"Bearer {ADMIN_TOKEN}"})
 
 
-def test_entropies_poses_and_disambiguation(api_with: Api, shared_data: Path) -> None:
+def test_entropies_poses_and_navigating_answers(api_with: Api, shared_data: Path) -> None:
     api = api_with
     robot = api.register()
     tour = api.client.post("/tours", json={"name": "corridor"}, headers=robot).json()["id"]
@@ -72,5 +71,4 @@ def test_entropies_poses_and_disambiguation(api_with: Api, shared_data: Path) ->
         assert r.status_code == 200, r.text
         body = r.json()
         assert body["mode"] == "navigating"
-        if body["disambiguation"] is not None:
-            assert len(body["disambiguation"]["between"]) >= 2
+        assert "disambiguation" not in body  # active disambiguation was removed

@@ -270,7 +270,7 @@ def test_a_new_path_found_while_navigating_is_added_on_yes_and_used_by_the_plann
     rt = home.services.navigation.runtime(home.tour)
     edge = next(j for j, e in enumerate(rt.graph.edges) if e.id == change["edge"])
     assert float(rt.costs(cc)[a]) < before_cost
-    alone = float(edge_costs(rt.graph, rt.cost_params)[edge])
+    alone = float(edge_costs(rt.graph, rt.params.costs)[edge])
     assert float(rt.costs(cc)[a]) == pytest.approx(alone)
 
     # a second answer is refused and changes nothing; undo restores the taught tour

@@ -32,9 +32,7 @@ def _tour() -> schemas.TourGraphPublic:
     return schemas.TourGraphPublic(id=1, name="home", locations=[], edges=[edge])
 
 
-def _answer(
-    state: schemas.StateProbability | None, *, between: int = 0
-) -> schemas.NavigationFrameResult:
+def _answer(state: schemas.StateProbability | None) -> schemas.NavigationFrameResult:
     return schemas.NavigationFrameResult(
         mode="navigating",
         command=schemas.MotionCommand(v=0.0, w=0.0, ttl_s=0.5, action="navigate"),
@@ -43,9 +41,6 @@ def _answer(
             top=[], entropy=0.0, localised=state is not None, localised_state=state
         ),
         votes={},
-        disambiguation=None
-        if not between
-        else schemas.DisambiguationPublic(between=[], separating=between > 1),
     )
 
 
@@ -68,19 +63,18 @@ def test_claims_are_judged_against_the_true_pose() -> None:
 def test_first_right_claim_and_wrong_claims() -> None:
     judge = LocalisationJudge(load_plan(PLAN), _tour())
     frames = [
-        (10.0, None, 0),
-        (10.1, SOFA, 1),  # wrong: the robot is at the desk
-        (10.2, SOFA, 2),
-        (10.3, None, 0),
-        (10.4, SOFA, 0),  # a second wrong claim
-        (10.5, DESK, 0),  # right, 0.5 s after the start
+        (10.0, None),
+        (10.1, SOFA),  # wrong: the robot is at the desk
+        (10.2, SOFA),
+        (10.3, None),
+        (10.4, SOFA),  # a second wrong claim
+        (10.5, DESK),  # right, 0.5 s after the start
     ]
-    for t, state, between in frames:
-        judge.observe(t, 1.8, 1.75, 0.0, _answer(state, between=between))
+    for t, state in frames:
+        judge.observe(t, 1.8, 1.75, 0.0, _answer(state))
     s = judge.summary()
     assert s["first_correct_s"] == pytest.approx(0.5)
     assert (s["wrong_claims"], s["wrong_claim_frames"]) == (2, 3)
-    assert (s["disambiguating_frames"], s["separating_frames"]) == (2, 1)
 
 
 def test_summaries_of_a_group_of_trials() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from server.belief.model import Action, ActionKind, BeliefModel
 from server.domain import Edge, Location, TourGraph
-from server.policy.costs import CostParams, cost_to_goal, edge_costs
+from server.policy.costs import CostParams, cost_to_goal, edge_costs, edge_remaining_s
 from server.policy.voting import PolicyParams, build_vote_plan, decide
 
 HALL, KITCHEN, OFFICE, BEDROOM, GARAGE = range(5)
@@ -75,6 +76,21 @@ def test_cost_params_change_the_route() -> None:
     slow = CostParams(rotation_s=80.0)
     costs = cost_to_goal(G, OFFICE, slow)
     assert costs[HALL] == pytest.approx(40 + 40)
+
+
+def test_costs_are_time_only_whatever_the_images_entropy() -> None:
+    """The images' distinctiveness is shown, not planned with: costs and votes are the same
+    with any entropies (least-ambiguous routes were removed, docs/ambiguity.md section 2)."""
+    h = np.random.default_rng(0).uniform(0.0, 2.0, G.n_images)
+    graph = dataclasses.replace(G, image_entropy=h)
+    np.testing.assert_array_equal(edge_costs(graph), edge_costs(G))
+    np.testing.assert_array_equal(edge_remaining_s(graph), edge_remaining_s(G))
+    for goal in range(G.n_locations):
+        np.testing.assert_array_equal(cost_to_goal(graph, goal), cost_to_goal(G, goal))
+        plan = build_vote_plan(graph, goal, cost_to_goal(graph, goal))
+        np.testing.assert_array_equal(
+            plan.vote, build_vote_plan(G, goal, cost_to_goal(G, goal)).vote
+        )
 
 
 def test_location_picks_the_cheaper_route() -> None:

@@ -1,5 +1,5 @@
-"""The dashboard's view of ambiguity: colours by entropy, the disambiguation text, a tour with
-taught poses drawn where it was taught."""
+"""The dashboard's view of ambiguity: colours by entropy, the texts, a tour with taught poses
+drawn where it was taught."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from server.domain import Edge, Location, TourGraph
 from web.ambiguity import (
     AMBIGUOUS,
     DISTINCT,
-    disambiguation_text,
     distinctiveness_text,
     edge_entropy,
     entropy_colors,
@@ -41,12 +40,7 @@ def test_entropies_per_edge_and_place_and_the_texts() -> None:
     np.testing.assert_allclose(edge_entropy(g)[0], [0.1, 0.2, 0.3])
     np.testing.assert_allclose(place_entropy(g), [0.7, 0.6])
     assert "bedroom 0.70, guest room 0.60" in distinctiveness_text(g)
-    text = disambiguation_text(((0, 0.5), (1, 0.4)), True, g)
-    assert text.startswith("Disambiguating between bedroom (0.50) and guest room (0.40)")
-    assert "acting to tell them apart" in text
-    assert disambiguation_text(((0, 0.9),), False, g) == ""
-    assert step_lines(((0, 0.5), (1, 0.4)), True, g) == f"\n\n{text}"
-    assert step_lines(((0, 0.9),), False, g) == ""
+    assert step_lines(g) == ""  # no taught path tracked
 
 
 def test_a_tour_with_taught_poses_is_drawn_where_it_was_taught() -> None:
