@@ -34,7 +34,9 @@ from server.vision.learning import learn_weights
 log = logging.getLogger(__name__)
 
 BELIEF_SNAPSHOT_S = 1.0
-"""Wall-clock seconds between two persisted belief snapshots of a navigating robot."""
+"""Seconds of robot time (the frames' timestamps) between two persisted belief snapshots of a
+navigating robot: which frames are saved depends on the frames alone, not on how fast this
+machine answered them, so a restart resumes from the same belief every time."""
 PREBUILD_DELAY_S = 1.0
 """After teaching changes a tour, wait this long for more changes before preparing it."""
 STAMP_CHECK_S = 1.0
@@ -110,7 +112,7 @@ class NavigationService:
         self._stamp_checked: dict[int, float] = {}  # monotonic time of the last look
         self._sessions: dict[str, RobotSession] = {}
         self._tour_of: dict[str, int] = {}
-        self._snapshot_at: dict[str, float] = {}
+        self._snapshot_at: dict[str, float] = {}  # robot time of each robot's last snapshot
         self._lock = threading.RLock()
         self._build_locks: dict[int, threading.Lock] = {}
         self._due: dict[int, float] = {}
@@ -432,8 +434,8 @@ class NavigationService:
                 belief_memory=memory,
             )
         )
-        if belief:
-            self._snapshot_at[session.robot] = self.clock()
+        if belief and session.last_timestamp is not None:
+            self._snapshot_at[session.robot] = session.last_timestamp
 
     # --- requests -------------------------------------------------------------------------
 
@@ -545,7 +547,8 @@ class NavigationService:
             )
             task = session.task
             changed = task is not None and task.state != before
-            due = now - self._snapshot_at.get(robot, 0.0) >= BELIEF_SNAPSHOT_S
+            saved = self._snapshot_at.get(robot)
+            due = saved is None or meta.timestamp - saved >= BELIEF_SNAPSHOT_S
             if task is not None and (changed or (task.underway and due)):
                 self._persist(session, belief=True)
             public = None if task is None else task_public(task, self._tour_of[robot])

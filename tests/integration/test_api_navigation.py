@@ -307,7 +307,6 @@ def test_a_restarted_service_resumes_the_whole_filter_not_only_the_belief(
     afresh on the same store (a restarted server) resumes the robot's belief and also its
     belief over the appearance models, the running familiarity of the change gate and the
     evidence averages, as they were after the frame that saved them."""
-    import time
 
     import numpy as np
 
@@ -319,8 +318,8 @@ def test_a_restarted_service_resumes_the_whole_filter_not_only_the_belief(
     queries = sorted((shared_data / "corridor" / "query").glob("*.jpg"))
     for k, path in enumerate(queries[:30]):
         assert post_frame(api, robot, path, 100 + k / 10).status_code == 200
-    time.sleep(BELIEF_SNAPSHOT_S + 0.1)
-    assert post_frame(api, robot, queries[30], 103.0).status_code == 200  # saved with it
+    # snapshots are a second of robot time apart (100.0, 101.0, 102.0): this frame is saved
+    assert post_frame(api, robot, queries[30], 102.0 + BELIEF_SNAPSHOT_S).status_code == 200
     live = services.navigation.session("rover")
     assert live is not None
     saved = live.tracker.memory()

@@ -201,9 +201,9 @@ def test_navigation_resumes_after_sigkill_from_the_persisted_belief(
     cleanup.append(server)
     client = TeachRepeatClient(server.url, taught.token, retries=6, backoff_s=0.2)
     task = client.goto("rover", "kitchen")
-    navigate_frames(client, taught.queries, 0, 25, 0.0)
-    time.sleep(BELIEF_SNAPSHOT_S + 0.1)  # the next frame's belief is persisted
-    before = navigate_frames(client, taught.queries, 25, 1, 2.5)
+    navigate_frames(client, taught.queries, 0, 25, 0.0)  # robot time 0.0-2.4 s
+    # the next frame's belief is persisted: a snapshot is due a second of robot time after the last
+    before = navigate_frames(client, taught.queries, 25, 1, 2.4 + BELIEF_SNAPSHOT_S)
     assert before.task is not None and before.task.state == "underway"
     server.kill()
 
@@ -299,7 +299,7 @@ def test_a_robot_whose_server_is_killed_mid_task_still_arrives(
     killed: list[tuple[int, schemas.TaskPublic | None]] = []
 
     def crash(step: int, result: schemas.NavigationFrameResult) -> None:
-        if step == 40 and not killed:  # the belief persisted last is up to a second old
+        if step == 40 and not killed:  # the belief persisted last is up to a robot second old
             killed.append((step, result.task))
             cleanup[0].kill()
 
