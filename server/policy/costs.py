@@ -66,7 +66,7 @@ class CostParams:
 
 
 def edge_costs(graph: TourGraph, params: CostParams | None = None) -> FloatArray:
-    """``(n_edges,)`` seconds to take each edge from its origin: turn into it, then follow it
+    """``(n_edges,)`` seconds to take each edge from its origin: turn into it, then follow it.
 
     ``inf`` for edges with no images (they cannot be followed).
     """
