@@ -20,7 +20,7 @@ from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate, PathTracker, path_likelihood
 from server.policy.costs import cost_to_goal
-from server.vision.distinctiveness import Distinctiveness, ImageLayout, image_entropy
+from server.vision.distinctiveness import ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
 from server.vision.homing import HomingParams, ZoomLevel, Zooms, match_features, taught_zoom_levels
 from server.vision.index import Similarity, TourIndex
@@ -313,8 +313,8 @@ class TourRuntime:
         self._ambiguity[location] = out = float(np.mean(best))
         return out
 
-    def distinctiveness(self) -> Distinctiveness:
-        """Every image's distinctiveness, computed now
+    def distinctiveness(self) -> FloatArray:
+        """``(n_images,)`` every image's distinctiveness (nats), computed now
         (:mod:`server.vision.distinctiveness`; one engine query per sampled image: call it
         once the index has its weights)."""
         return image_entropy(

@@ -294,11 +294,11 @@ class NavigationService:
         stored = graph.has_entropy and self.repo.entropy_images(tour_id) == rt.taught_images
         if stored:
             return
-        found = rt.distinctiveness()
-        rt.attach_distinctiveness(found.entropy)
+        entropy = rt.distinctiveness()
+        rt.attach_distinctiveness(entropy)
         if not rt.mapped:
             ids = [int(i) for i in graph.image_ids]
-            self.repo.set_entropies(tour_id, list(zip(ids, found.entropy.tolist(), strict=True)))
+            self.repo.set_entropies(tour_id, list(zip(ids, entropy.tolist(), strict=True)))
 
     def _pixels(self, image_ids: list[int]) -> Callable[[int], np.ndarray | None]:
         """Reads the pixels of ``image_ids[k]`` from the store (for docking's zoom levels,

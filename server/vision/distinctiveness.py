@@ -45,7 +45,6 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 __all__ = [
-    "Distinctiveness",
     "DistinctivenessParams",
     "ImageLayout",
     "image_entropy",
@@ -79,18 +78,6 @@ class DistinctivenessParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"DistinctivenessParams.{name} must be finite and > 0")
-
-
-@dataclass(frozen=True)
-class Distinctiveness:
-    """What :func:`image_entropy` computed.
-
-    * ``entropy``: ``(n_images,) float64`` nats, canonical image order.
-    * ``sampled``: ``(m,) int64`` canonical indices of the images that were queried.
-    """
-
-    entropy: FloatArray
-    sampled: IntArray
 
 
 @dataclass(frozen=True)
@@ -247,8 +234,9 @@ def image_entropy(
     features: Sequence[ImageFeatures],
     layout: ImageLayout,
     params: DistinctivenessParams | None = None,
-) -> Distinctiveness:
-    """The distinctiveness of every image of ``layout`` (see the module docstring).
+) -> FloatArray:
+    """The distinctiveness of every image of ``layout`` (see the module docstring): ``(n_images,)
+    float64`` entropies in nats, canonical image order.
 
     ``index`` holds the tour's images in the layout's order (with its weights set) and
     ``features[i]`` are image ``i``'s features. One engine query per sampled image.
@@ -261,7 +249,7 @@ def image_entropy(
             f"for a tour of {n} images"
         )
     if n == 0:
-        return Distinctiveness(np.zeros(0), np.zeros(0, np.int64))
+        return np.zeros(0)
     near_src, near_tgt = layout.near_places(p.near_m)
     sampled = sample_images(layout, p.spacing_m)
     state = layout.state
@@ -271,4 +259,4 @@ def image_entropy(
     spot = spot_mask(sampled, state, layout.along, near_src, near_tgt, p.near_m)
     starts = np.flatnonzero(np.concatenate([[True], state[1:] != state[:-1]]))
     entropy = retrieval_entropy(scores, spot, starts, sharpness=p.sharpness)
-    return Distinctiveness(interpolate(layout, sampled, entropy), sampled)
+    return interpolate(layout, sampled, entropy)

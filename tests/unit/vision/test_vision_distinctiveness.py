@@ -42,8 +42,7 @@ def test_a_duplicated_place_is_more_ambiguous_than_a_unique_one() -> None:
     graph = TourGraph(locations, (_edge(0, 1, range(8, 20)),))
     assert graph.image_state.tolist() == states
     index, feats = index_of(images, states)
-    result = image_entropy(index, feats, image_layout(graph))
-    h = result.entropy
+    h = image_entropy(index, feats, image_layout(graph))
     assert h.shape == (graph.n_images,) and np.all(h >= 0)
     duplicated = [h[0], h[1], h[6], h[7]]
     unique = [h[2], h[3], h[4], h[5]]
