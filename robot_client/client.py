@@ -263,21 +263,6 @@ class TeachRepeatClient:
         """The tour's learned changes (docs/learning.md)."""
         return self._list(schemas.LearnedChange, f"/tours/{tour}/learned")
 
-    def junctions(
-        self, tour: int, *, dry_run: bool = False, timeout_s: float = 120.0
-    ) -> schemas.JunctionResult:
-        """Find the tour's junctions of shared path prefixes and, unless ``dry_run``, apply
-        each as a learned change (docs/learning.md, "Junctions"). The search queries the
-        engine with the images of every pair of paths leaving one place (and prepares the tour
-        first if it has not been yet): it gets ``timeout_s`` seconds, not the client's."""
-        return self._call(
-            schemas.JunctionResult,
-            "POST",
-            f"/tours/{tour}/junctions",
-            json={"dry_run": dry_run},
-            timeout=timeout_s,
-        )
-
     def unlearn(self, tour: int, change: int) -> None:
         """Remove one learned change of the tour."""
         self._request("DELETE", f"/tours/{tour}/learned/{change}")

@@ -30,15 +30,11 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Location:
-    """A named place. ``image_ids`` are the storage ids of its spin images, in order.
-    ``junction``: an unnamed place where two taught paths part, learned from their shared
-    prefix (:mod:`server.belief.junctions`); its one image is the last view the two paths
-    share (not a spin), and it has no storage id."""
+    """A named place. ``image_ids`` are the storage ids of its spin images, in order."""
 
     name: str
     image_ids: tuple[int, ...] = ()
     id: int = -1  # storage id, -1 when the graph was built by hand
-    junction: bool = False
 
 
 @dataclass(frozen=True)

@@ -184,39 +184,6 @@ class QuestionAnswer(_Model):
     answer: Literal["yes", "no"] = Field(description="'yes' or 'no'.")
 
 
-class JunctionSearch(_Model):
-    """POST /tours/{tour}/junctions: find junctions of shared path prefixes and apply them."""
-
-    dry_run: bool = Field(
-        default=False, description="Only list what would be applied; change nothing."
-    )
-
-
-class JunctionPublic(_Model):
-    """One junction: where two taught paths part (docs/learning.md, "Junctions")."""
-
-    source: str = Field(description="The place both paths leave (or an earlier junction).")
-    kept_edge: int = Field(description="Taught edge whose shared images the shared edge keeps.")
-    other_edge: int = Field(description="Taught edge whose shared images are mapped onto them.")
-    kept_target: str
-    other_target: str
-    kept_shared: int = Field(description="Images of the kept edge before the junction.")
-    other_shared: int = Field(description="Images of the other edge before the junction.")
-    change: int | None = Field(
-        default=None, description="The learned change that applied it (None on a dry run)."
-    )
-
-
-class JunctionResult(_Model):
-    """What POST /tours/{tour}/junctions found and, unless a dry run, applied."""
-
-    dry_run: bool
-    junctions: list[JunctionPublic]
-    changes: list[LearnedChange] = Field(
-        description="The learned changes made, one per junction (empty on a dry run)."
-    )
-
-
 class TourCreate(_Model):
     name: TourName
 

@@ -394,19 +394,10 @@ class Publisher:
         if counts is None:
             return None
         # the distinctiveness arrives after teaching, in the background: its count is the key too
-        from server.belief.junctions import refine
-
-        repo = self.services.repo
-        junctions = repo.junctions(tour_id)  # the graph as navigation sees it: refined
-        key: tuple[object, ...] = (
-            tour_id,
-            *counts,
-            repo.entropy_images(tour_id),
-            tuple(c for c, _ in junctions),
-        )
+        key: tuple[object, ...] = (tour_id, *counts, self.services.repo.entropy_images(tour_id))
         graph = self._graphs.get(key)
         if graph is None:
-            graph = refine(repo.graph(tour_id), [j for _, j in junctions]).graph
+            graph = self.services.repo.graph(tour_id)
             self._graphs = {key: graph}  # keep one: the tour on screen
         return graph
 

@@ -23,7 +23,7 @@ from web.ambiguity import edge_entropy_colors
 from web.imagery import belief_colors
 
 if TYPE_CHECKING:
-    from server.domain import Location, TourGraph
+    from server.domain import TourGraph
     from web.publisher import Snapshot
 
 FloatArray = npt.NDArray[np.float64]
@@ -43,16 +43,6 @@ class View:
     look: tuple[float, float, float]
     right: FloatArray
     down: FloatArray
-
-
-JUNCTION_SCALE = 0.6
-"""Radius of a junction's sphere relative to a named place's."""
-
-
-def place_label(loc: Location) -> str:
-    """A place's label: its name; a junction (unnamed, learned from shared path prefixes):
-    a diamond."""
-    return "\u25c7" if loc.junction else loc.name
 
 
 def fit_view(layout: GraphLayout, *, aspect: float = 0.6, fov: float = math.radians(75)) -> View:
@@ -129,22 +119,19 @@ class GraphScene:
         scene = cls(key, graph, layout, radius=radius)
         for k, loc in enumerate(graph.locations):
             pos = layout.places[k]
-            # a junction learned from shared path prefixes (docs/learning.md): smaller, a
-            # wireframe, labelled with a diamond, not a name
             scene.places.append(
                 sc.add_icosphere(
                     f"/graph/place/{k}",
-                    radius=JUNCTION_SCALE * radius if loc.junction else radius,
+                    radius=radius,
                     color=(96, 108, 128),
                     position=pos,
                     subdivisions=2,
-                    wireframe=loc.junction,
                 )
             )
             scene.labels.append(
                 sc.add_label(
                     f"/graph/label/{k}",
-                    place_label(loc),
+                    loc.name,
                     position=pos + 1.3 * radius * view.down,
                     anchor="top-center",
                     font_screen_scale=1.0,
@@ -258,8 +245,7 @@ class GraphScene:
         seg_colors = np.repeat(belief_colors(edge_p)[layout.segment_edge][:, None, :], 2, axis=1)
         point_colors = belief_colors(point_p)
         label_texts = [
-            f"{loc.name} (goal)" if loc.name == goal else place_label(loc)
-            for loc in graph.locations
+            f"{loc.name} (goal)" if loc.name == goal else loc.name for loc in graph.locations
         ]
         with server.atomic():
             for k, handle in enumerate(self.places):

@@ -81,7 +81,6 @@ class SweepConfig:
     record: str | None = None  # folder for the recordings kept (--record)
     record_all: bool = False  # keep every trial's recording, not only the failures'
     experience_runs: int = 0  # runs per plan and condition that add experiences first
-    junctions: bool = False  # apply the tour's junctions after teaching (--junctions)
     no_depth: bool = False  # a robot without a depth sensor: taught and navigating (--no-depth)
 
 
@@ -132,7 +131,6 @@ class Worker:
         self._truth: dict[int, Any] = {}  # where each plan's taught paths really are (judge)
         self._worlds: dict[tuple[int, str], Any] = {}
         self._experienced: dict[tuple[int, str], int] = {}  # images added per plan, condition
-        self._junctions: dict[int, int] = {}  # junctions applied per plan (--junctions)
         self.teach_s = 0.0
 
     def close(self) -> None:
@@ -165,12 +163,6 @@ class Worker:
                 # first goto: here, with time to spare on a loaded machine, not in a trial's
                 client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
                 client.stop(name)
-                if self.config.junctions:  # docs/learning.md, "Junctions"
-                    found = client.junctions(graph.id, timeout_s=PREPARE_S)
-                    self._junctions[plan] = len(found.changes)
-                    # prepare the refined tour too, before the first trial
-                    client.goto(name, graph.locations[0].name, tour=graph.id, timeout_s=PREPARE_S)
-                    client.stop(name)
                 self._tours[plan] = graph
                 from robot_client.trial import TaughtTruth
 
@@ -238,7 +230,6 @@ class Worker:
             "condition": spec.condition,
             "trial": spec.trial,
             "experiences_added": added,
-            "junctions": self._junctions.get(spec.plan, 0),
             **result.row(),
             **evidence,
             "wall_s": time.perf_counter() - t0,

@@ -90,13 +90,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "driven without depth profiles; obstacle avoidance then rests on the bump and stall "
         "behaviours",
     )
-    parser.add_argument(
-        "--junctions",
-        action="store_true",
-        help="after teaching each plan, find and apply its junctions of shared path prefixes "
-        "(POST /tours/{tour}/junctions; docs/learning.md, 'Junctions'); each trial's row has "
-        "how many",
-    )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     add_set_argument(
         parser,
@@ -314,7 +307,6 @@ def run(args: argparse.Namespace) -> int:
             record=None if args.record is None else str(args.record.resolve()),
             record_all=args.record_all,
             experience_runs=args.experience_runs,
-            junctions=args.junctions,
             no_depth=args.no_depth,
         )
         bar = tqdm(total=len(specs), desc="trials", unit="trial")
@@ -378,7 +370,6 @@ def run(args: argparse.Namespace) -> int:
         "only": None if args.only is None else sorted(args.only),
         "max_steps": args.max_steps,
         "experience_runs": args.experience_runs,
-        "junctions": args.junctions,
         "no_depth": args.no_depth,
         "settings": dict(args.settings),
         "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),

@@ -11,7 +11,6 @@ from typing import Literal
 
 import numpy as np
 
-from server.belief.junctions import JunctionParams
 from server.belief.model import TransitionParams
 from server.belief.questions import QuestionParams
 from server.belief.tracker import TrackerParams
@@ -65,14 +64,11 @@ class LearningParams:
       one more drops the oldest.
     * ``run_steps`` (3000 frames): the tracker steps kept for learned transitions (two
       ``(n_fine,)`` float64 arrays each; 0: learn no transitions).
-    * ``junctions``: when two taught paths count as sharing a prefix
-      (``POST /tours/{id}/junctions``, :class:`server.belief.junctions.JunctionParams`).
     """
 
     collect: bool = False
     experiences_per_image: int = 2
     run_steps: int = 3000
-    junctions: JunctionParams = field(default_factory=JunctionParams)
 
     def __post_init__(self) -> None:
         if self.experiences_per_image < 0 or self.run_steps < 0:

@@ -56,11 +56,6 @@ class TourRuntime:
         self.graph = graph
         self.params = params
         self.version = version
-        # a tour refined by junctions (server.belief.junctions): the taught graph's image count
-        # (stored weights and entropies are the taught images') and the taught images the
-        # refinement mapped onto others (image id -> the image id it stands for)
-        self.taught_images = graph.n_images
-        self.mapped: dict[int, int] = {}
         self.features = tuple(features)
         self._levels: tuple[bytes, FloatArray] | None = None  # error_levels(), per weights
         self.index = TourIndex(params.engine)

@@ -15,7 +15,6 @@ from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
 from server.services.control import ControlParams, ControlService
 from server.services.households import HouseholdService, Identities, LoginParams
-from server.services.junctions import JunctionService
 from server.services.learning import LearningService
 from server.services.navigation import NavigationService
 from server.services.questions import QuestionService
@@ -37,7 +36,6 @@ class Services:
     navigation: NavigationService
     recordings: Recorder
     learning: LearningService
-    junctions: JunctionService
     questions: QuestionService
     control: ControlService
 
@@ -104,7 +102,6 @@ class Services:
             navigation=nav,
             recordings=recorder,
             learning=learning,
-            junctions=JunctionService(repo, nav, nav.params.learning.junctions),
             questions=questions,
             control=driving,
         )

@@ -182,19 +182,9 @@ class LearningService(NavigationObserver):
         return [change_public(r) for r in self.repo.learned_changes(tour_id)]
 
     def remove(self, tour_id: int, change_id: int, household: int) -> None:
-        """Delete one change (404: no such change of the household's tour; 409: a junction
-        that later junctions were found on, :func:`junction_dependents`)."""
-        from server.services.junctions import junction_dependents
-
+        """Delete one change (404: no such change of the household's tour)."""
         self.repo.tour(tour_id, household)
-        with self.repo.transaction():
-            needed = junction_dependents(self.repo, tour_id, change_id)
-            if needed:
-                raise Conflict(
-                    f"junction {change_id} has edges that the later junction(s) "
-                    f"{', '.join(map(str, needed))} split; remove those first"
-                )
-            self.repo.remove_learned_change(tour_id, change_id)
+        self.repo.remove_learned_change(tour_id, change_id)
         self.on_change(tour_id)
 
 

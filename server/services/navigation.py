@@ -18,7 +18,6 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
-from server.belief.junctions import refine
 from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.tracker import BeliefError, BeliefSummary, TrackerMemory
 from server.domain import TourGraph
@@ -234,11 +233,9 @@ class NavigationService:
         return self._built_from.get(tour_id) == self._changes.get(tour_id, 0)
 
     def _build(self, tour_id: int, *, version: int) -> TourRuntime:
-        taught = self.repo.graph(tour_id)
-        if taught.n_locations == 0:
+        graph = self.repo.graph(tour_id)
+        if graph.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
-        refinement = refine(taught, [j for _, j in self.repo.junctions(tour_id)])
-        graph = refinement.graph
         scale = learned_scale(self.repo, tour_id, graph.n_edges)
         rt = TourRuntime(
             graph,
@@ -247,8 +244,6 @@ class NavigationService:
             version=version,
             advance_scale=scale,
         )
-        rt.taught_images = taught.n_images
-        rt.mapped = refinement.mapped
         rt.taught_pixels = self._pixels([int(i) for i in graph.image_ids])
         depths = self.repo.depths([int(i) for i in graph.image_ids])
         rt.taught_depth = {
@@ -260,45 +255,30 @@ class NavigationService:
         if len(rt.index.model_weights()) > 1:
             rt.error_levels()  # the change evidence's scale, before the first frame needs it
         self._distinctiveness(tour_id, rt)
-        self._mapped(rt)
         self._experiences(tour_id, rt)
         return rt
 
-    def _mapped(self, rt: TourRuntime) -> None:
-        """The images a junction mapped (docs/learning.md, "Junctions") into the index as
-        more appearances of the images they stand for."""
-        if not rt.mapped:
-            return
-        canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
-        ids = sorted(rt.mapped)
-        feats = self._features(ids)
-        rt.add_experiences([(canonical[rt.mapped[i]], f) for i, f in zip(ids, feats, strict=True)])
-
     def _experiences(self, tour_id: int, rt: TourRuntime) -> None:
-        """The tour's stored experiences (docs/learning.md) into its index (an experience of
-        an image a junction mapped: of the image it stands for)."""
+        """The tour's stored experiences (docs/learning.md) into its index."""
         canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
         items = []
         for image_id, blob in self.repo.experiences(tour_id):
             feats = _stored_features(blob, self.params.features)
-            k = canonical.get(rt.mapped.get(image_id, image_id))
-            if feats is not None and k is not None:
-                items.append((k, feats))
+            if feats is not None and image_id in canonical:
+                items.append((canonical[image_id], feats))
         rt.add_experiences(items)
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else
-        computed now (one engine query per sampled image) and stored. A tour refined by
-        junctions uses the taught images' entropies and stores none of its own."""
+        computed now (one engine query per sampled image) and stored."""
         graph = rt.graph
-        stored = graph.has_entropy and self.repo.entropy_images(tour_id) == rt.taught_images
+        stored = graph.has_entropy and self.repo.entropy_images(tour_id) == graph.n_images
         if stored:
             return
         entropy = rt.distinctiveness()
         rt.attach_distinctiveness(entropy)
-        if not rt.mapped:
-            ids = [int(i) for i in graph.image_ids]
-            self.repo.set_entropies(tour_id, list(zip(ids, entropy.tolist(), strict=True)))
+        ids = [int(i) for i in graph.image_ids]
+        self.repo.set_entropies(tour_id, list(zip(ids, entropy.tolist(), strict=True)))
 
     def _pixels(self, image_ids: list[int]) -> Callable[[int], np.ndarray | None]:
         """Reads the pixels of ``image_ids[k]`` from the store (for docking's zoom levels,
@@ -335,10 +315,10 @@ class NavigationService:
         """The tour's signature weights: stored when learned on this very tour, else learned
         now (the engine's documented defaults for tours too small to learn from) and stored."""
         blob, n_images = self.repo.tour_weights(tour_id)
-        if blob is not None and n_images == rt.taught_images:
+        if blob is not None and n_images == rt.graph.n_images:
             return np.frombuffer(blob, dtype=np.float32).astype(np.float64)
         stored = np.asarray(learn_weights(rt.index, params=self.params.engine), np.float32)
-        self.repo.set_tour_weights(tour_id, stored.tobytes(), rt.taught_images)
+        self.repo.set_tour_weights(tour_id, stored.tobytes(), rt.graph.n_images)
         # as stored: the first build answers bit for bit as every later one
         return stored.astype(np.float64)
 

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.junctions import Junction
 from server.domain import Edge, Location, TourGraph
 from server.errors import NotFound
 from server.storage.database import open_database
@@ -1024,50 +1023,6 @@ class Repo:
             "SELECT id FROM images WHERE pending_robot = ? ORDER BY seq DESC LIMIT 1", (robot,)
         )
         return int(rows[0][0]) if rows else None
-
-    def add_junction_change(
-        self,
-        tour_id: int,
-        junction: Junction,
-        *,
-        source: str,
-        summary: str,
-        now: float,
-    ) -> int:
-        """Store one junction (migration 7) as a learned change of kind 'junction'; its id."""
-        with self.transaction():
-            change = self._insert(
-                "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary) "
-                "VALUES (?, 'junction', ?, ?, ?)",
-                (tour_id, now, source, summary),
-            )
-            self._x(
-                "INSERT INTO junctions (change_id, keep_image_id, other_image_id, keep_shared, "
-                "other_shared, mapping) VALUES (?, ?, ?, ?, ?, ?)",
-                (
-                    change,
-                    int(junction.keep_first),
-                    int(junction.other_first),
-                    int(junction.keep_shared),
-                    int(junction.other_shared),
-                    junction.mapping_bytes(),
-                ),
-            )
-        return change
-
-    def junctions(self, tour_id: int) -> list[tuple[int, Junction]]:
-        """``(change id, junction)`` of every junction of the tour, oldest first (the order
-        they apply in)."""
-        rows = self._q(
-            "SELECT c.id, j.keep_image_id, j.other_image_id, j.keep_shared, j.other_shared, "
-            "j.mapping FROM junctions j JOIN learned_changes c ON c.id = j.change_id "
-            "WHERE c.tour_id = ? AND c.kind = 'junction' ORDER BY c.id, j.id",
-            (tour_id,),
-        )
-        return [
-            (int(c), Junction(int(a), int(b), int(ka), int(kb), Junction.mapping_from_bytes(m)))
-            for c, a, b, ka, kb, m in rows
-        ]
 
     def transition_counts(self, tour_id: int) -> list[bytes]:
         """The stored counts of every 'transitions' change of the tour, oldest first."""

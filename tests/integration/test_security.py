@@ -226,7 +226,6 @@ ROUTE_RULES: dict[tuple[str, str], str] = {
     ("GET", "/images/{image_id}"): "household_object",
     ("GET", "/tours/{tour_id}/learned"): "household_object",
     ("DELETE", "/tours/{tour_id}/learned/{change_id}"): "household_missing_child",
-    ("POST", "/tours/{tour_id}/junctions"): "household_object",
     ("GET", "/robots/{robot}/recordings"): "drive_robot",  # a robot's recordings: as driving it
     ("GET", "/robots/{robot}/recordings/{name}"): "drive_robot",
     ("GET", "/robots/{robot}/questions"): "drive_robot",  # the robot's questions: as driving it

@@ -55,17 +55,3 @@ def remove_learned(
     """Undo one learned change: the tour behaves as if it had never been learned."""
     services.learning.remove(tour_id, change_id, household)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
-
-
-@router.post("/{tour_id}/junctions", response_model=schemas.JunctionResult)
-def find_junctions(
-    tour_id: PathId,
-    body: schemas.JunctionSearch,
-    services: ServicesDep,
-    household: HouseholdDep,
-) -> schemas.JunctionResult:
-    """Find where two taught paths leave one place along the same images and then part, and
-    make each shared part one edge to a new unnamed junction (docs/learning.md, "Junctions").
-    Each junction is a learned change: listed in /tours/{tour_id}/learned, undone by deleting
-    it. ``dry_run``: only list them. 409 when the tour has no places yet."""
-    return services.junctions.search(tour_id, body, household)

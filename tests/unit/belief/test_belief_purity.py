@@ -12,7 +12,7 @@ def test_belief_and_policy_import_only_the_pure_core() -> None:
     code = (
         "import sys\n"
         "import server.belief, server.belief.model, server.belief.tracker, server.belief.smoother\n"
-        "import server.belief.junctions\n"
+        "import server.belief.questions\n"
         "import server.policy, server.policy.costs, server.policy.voting\n"
         f"bad = sorted(m for m in sys.modules if m.split('.')[0] in {FORBIDDEN!r})\n"
         "assert not bad, bad\n"

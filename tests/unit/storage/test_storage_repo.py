@@ -501,14 +501,12 @@ def test_a_write_waits_for_another_processs_write_then_is_told_busy(store: Path 
         repo.close()
 
 
-def test_a_schema_5_database_upgrades_losing_nothing_and_keeps_junctions(
+def test_a_schema_5_database_upgrades_to_9_losing_nothing_and_junctions_go_with_their_change(
     store: Path | str,
 ) -> None:
-    """Schema 5 -> newest (7: junctions; the CHECK on the change's kind goes): every learned
-    change and experience kept, with their ids; a junction round-trips and goes with its
-    change, as the experiences do."""
-    from server.belief.junctions import Junction
-
+    """Schema 5 -> 9 (7: junctions; the CHECK on the change's kind goes): every learned change
+    and experience kept, with their ids; a junction row goes with its change, as the
+    experiences do. (Schema 10 then removes both kinds: the next tests.)"""
     db = _old(store, 5)
     x = db.execute
     x("INSERT INTO households (id, name, password_hash, created_at) VALUES (2, 'flat', 'ah', 1.0)")
@@ -532,31 +530,31 @@ def test_a_schema_5_database_upgrades_losing_nothing_and_keeps_junctions(
         (b"\x01\x02",),
     )
     before = _rows(db, ("learned_changes", "experiences", "images", "tours"))
-    db.close()
-    repo = Repo(store)
     try:
-        assert repo.schema_version == MIGRATIONS[-1][0] >= 7
-        assert _rows(repo.db, before) == before
-        assert repo.integrity_ok()
-        junction = Junction(1, 2, 3, 2, (0, 2))
-        made = repo.add_junction_change(7, junction, source="search", summary="j", now=3.0)
-        assert made == 6 and repo.junctions(7) == [(6, junction)]
-        assert [r.kind for r in repo.learned_changes(7)] == [
-            "experience",
-            "transitions",
-            "junction",
-        ]
-        repo.remove_learned_change(7, 4)
-        repo.remove_learned_change(7, 6)
-        assert repo.experiences(7) == [] and repo.junctions(7) == []
-        assert repo.db.execute("SELECT count(*) FROM junctions").fetchone()[0] == 0
+        assert migrate(db, upto=9) == 9
+        assert _rows(db, before) == before
+        assert db.integrity_ok()
+        made = db.insert(
+            "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary) "
+            "VALUES (7, 'junction', 3.0, 'search', 'j')"
+        )
+        assert made == 6  # past the copied ids, on PostgreSQL too
+        x(
+            "INSERT INTO junctions (change_id, keep_image_id, other_image_id, keep_shared, "
+            "other_shared, mapping) VALUES (6, 1, 2, 3, 2, ?)",
+            (b"\x00" * 8,),
+        )
+        x("DELETE FROM learned_changes WHERE id IN (4, 6)")
+        assert x("SELECT count(*) FROM experiences").fetchone()[0] == 0
+        assert x("SELECT count(*) FROM junctions").fetchone()[0] == 0
     finally:
-        repo.close()
+        db.close()
 
 
 def test_a_schema_5_database_upgrades_to_questions_losing_nothing(store: Path | str) -> None:
     """Schema 5 -> 6 (questions; learned_changes rebuilt): every learned change and experience
-    kept, experiences still cascade with their change, any kind of LEARNED_KINDS is accepted."""
+    kept, experiences still cascade with their change, any kind is accepted, and new changes
+    get ids past the copied ones."""
     db = _old(store, 5)
     x = db.execute
     x("INSERT INTO tours (id, household_id, name, created_at) VALUES (7, 1, 'home', 3.0)")
@@ -578,26 +576,23 @@ def test_a_schema_5_database_upgrades_to_questions_losing_nothing(store: Path | 
         (b"\x01\x02",),
     )
     before = _rows(db, ("learned_changes", "experiences"))
-    db.close()
-    repo = Repo(store)
     try:
-        assert repo.schema_version == MIGRATIONS[-1][0] >= 6
-        assert _rows(repo.db, before) == before  # the columns they had, every row
-        assert [(r.id, r.kind, r.images, r.edge_id) for r in repo.learned_changes(7)] == [
-            (3, "experience", 1, None),
-            (4, "transitions", 0, None),
-        ]
-        assert repo.integrity_ok()
-        _references_hold(repo)
-        repo.remove_learned_change(7, 3)  # the experience goes with its change
-        assert repo.experiences(7) == []
-        with repo.transaction():
-            made = repo.add_learned_change(7, "look_alike", source="q", summary="s", now=1.0)
+        assert migrate(db, upto=6) == 6
+        assert _rows(db, before) == before  # the columns they had, every row
+        edges = x("SELECT id, edge_id FROM learned_changes ORDER BY id").fetchall()
+        assert [tuple(r) for r in edges] == [(3, None), (4, None)]
+        assert db.integrity_ok()
+        if db.dialect == "sqlite":
+            assert x("PRAGMA foreign_key_check").fetchall() == []
+        x("DELETE FROM learned_changes WHERE id = 3")  # the experience goes with its change
+        assert x("SELECT count(*) FROM experiences").fetchone()[0] == 0
+        made = db.insert(
+            "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary) "
+            "VALUES (7, 'look_alike', 1.0, 'q', 's')"
+        )
         assert made == 5  # past the copied ids, on PostgreSQL too
-        with pytest.raises(ValueError, match="unknown learned change kind"):
-            repo.add_learned_change(7, "guess", source="q", summary="s", now=1.0)
     finally:
-        repo.close()
+        db.close()
 
 
 def test_the_stored_kinds_of_learned_change_are_the_ones_the_api_names() -> None:
