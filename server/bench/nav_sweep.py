@@ -39,9 +39,6 @@ BENCH_SERVER_SETTINGS: dict[str, Any] = {"frame_timeout_s": 1e9, "history": 1}
 watchdog (wall clock; the simulated robot's clock stands still while it waits) and a history of
 one step per robot (the dashboard's; each trial has its own robot). Neither changes a command."""
 
-EXPERIENCE_TRIAL = 1_000_000
-"""Trial numbers of the experience runs (``--experience-runs``) start here."""
-
 PREPARE_S = 1800.0
 """How long a worker waits for its server to prepare a freshly taught tour (its first goto)."""
 
@@ -80,7 +77,6 @@ class SweepConfig:
     trace: str | None  # folder for per-step traces
     record: str | None = None  # folder for the recordings kept (--record)
     record_all: bool = False  # keep every trial's recording, not only the failures'
-    experience_runs: int = 0  # runs per plan and condition that add experiences first
     no_depth: bool = False  # a robot without a depth sensor: taught and navigating (--no-depth)
 
 
@@ -130,7 +126,6 @@ class Worker:
         self._tours: dict[int, Any] = {}
         self._truth: dict[int, Any] = {}  # where each plan's taught paths really are (judge)
         self._worlds: dict[tuple[int, str], Any] = {}
-        self._experienced: dict[tuple[int, str], int] = {}  # images added per plan, condition
         self.teach_s = 0.0
 
     def close(self) -> None:
@@ -196,7 +191,6 @@ class Worker:
         plan = self.plans[spec.plan]
         graph = self.tour(spec.plan)
         world = self.world(spec.plan, spec.condition)
-        added = self.experiences(spec.plan, spec.condition)
         start, goal, noise = draw_trial(plan, self.config.seed, spec.trial)
         name = f"trial-{spec.plan}-{spec.condition}-{spec.trial}"
         t0 = time.perf_counter()
@@ -229,48 +223,10 @@ class Worker:
             "plan": plan.name,
             "condition": spec.condition,
             "trial": spec.trial,
-            "experiences_added": added,
             **result.row(),
             **evidence,
             "wall_s": time.perf_counter() - t0,
         }
-
-    def experiences(self, plan: int, condition: str) -> int:
-        """Before the first trial of ``plan`` in ``condition``: ``experience_runs`` supervised
-        runs in that condition (trial numbers from :data:`EXPERIENCE_TRIAL`, never a measured
-        trial's); each that truly arrived (the simulator's truth) is kept through
-        ``POST /robots/{robot}/learn``. Returns the images added (the same on every worker:
-        the runs are deterministic)."""
-        key = (plan, condition)
-        if key in self._experienced:
-            return self._experienced[key]
-        from robot_client.client import TeachRepeatClient
-        from robot_client.sim import SimulatedRobot
-        from robot_client.trial import draw_trial, run_trial
-
-        added = 0
-        graph = self.tour(plan)
-        world = self.world(plan, condition)
-        for k in range(self.config.experience_runs):
-            number = EXPERIENCE_TRIAL + k
-            start, goal, noise = draw_trial(self.plans[plan], self.config.seed, number)
-            name = f"experience-{plan}-{condition}-{k}"
-            with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
-                robot = SimulatedRobot(world, start, seed=noise)
-                result = run_trial(
-                    client,
-                    name,
-                    robot,
-                    self.plans[plan],
-                    goal,
-                    tour=graph,
-                    max_steps=self.config.max_steps,
-                    depth_sensor=not self.config.no_depth,
-                )
-                if result.success:
-                    added += sum(c.images for c in client.learn(name) if c.kind == "experience")
-        self._experienced[key] = added
-        return added
 
     def _keep_recording(
         self, client: Any, robot: str, spec: TrialSpec, success: bool

@@ -74,16 +74,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "as it does in the full run",
     )
     parser.add_argument(
-        "--experience-runs",
-        type=int,
-        default=0,
-        metavar="K",
-        help="before the trials of each plan and condition, K supervised runs in that "
-        "condition (their own trial numbers); each that arrives adds its images as an "
-        "experience (POST /robots/{robot}/learn; docs/learning.md). Needs learning.collect, "
-        "set for you",
-    )
-    parser.add_argument(
         "--no-depth",
         action="store_true",
         help="a robot without a depth sensor (one web-cam): the tour is taught and every trial "
@@ -188,7 +178,6 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "median_time_s": stats([r["time_s"] for r in ok])["p50"],
         "median_free_space_ratio": stats([r["free_space_ratio"] for r in ok])["p50"],
         "explore_fraction": float(np.mean([r["explore_fraction"] for r in rows])) if rows else 0.0,
-        "experiences_added": max((int(r.get("experiences_added", 0)) for r in rows), default=0),
         "failures_by_cause": {c: causes[c] for c in CAUSES_ORDER if causes[c]},
         "failures_by_behaviour": dict(sorted(behaviours.items())),
         **localisation_summary(rows),
@@ -270,11 +259,6 @@ def run(args: argparse.Namespace) -> int:
     if args.record_all and args.record is None:
         print(f"{prog}: --record-all needs --record DIR (where to keep them)", file=sys.stderr)
         return 2
-    if args.experience_runs < 0:
-        print(f"{prog}: --experience-runs must be >= 0", file=sys.stderr)
-        return 2
-    if args.experience_runs:
-        args.settings = [("learning.collect", True), ("learning.run_steps", 0), *args.settings]
     try:
         env = _navigation_env(args.settings)
     except ValueError as exc:
@@ -306,7 +290,6 @@ def run(args: argparse.Namespace) -> int:
             trace=None if args.trace is None else str(args.trace),
             record=None if args.record is None else str(args.record.resolve()),
             record_all=args.record_all,
-            experience_runs=args.experience_runs,
             no_depth=args.no_depth,
         )
         bar = tqdm(total=len(specs), desc="trials", unit="trial")
@@ -369,7 +352,6 @@ def run(args: argparse.Namespace) -> int:
         "trials_per_group": len(trials),
         "only": None if args.only is None else sorted(args.only),
         "max_steps": args.max_steps,
-        "experience_runs": args.experience_runs,
         "no_depth": args.no_depth,
         "settings": dict(args.settings),
         "bench_server_settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),

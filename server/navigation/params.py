@@ -56,23 +56,19 @@ class LearningParams:
     nothing learned; a tour's stored changes (``GET /tours/{id}/learned``) are used whenever
     it has some.
 
-    * ``collect`` (False): keep, per robot, what its task underway could teach: the frames
-      localised on an edge (one per taught image, the last) and the tracker's steps (up to
-      ``run_steps``). ``POST /robots/{robot}/learn`` then stores them as learned changes when
-      the task arrived.
-    * ``experiences_per_image`` (2): at most this many experiences per taught image; adding
-      one more drops the oldest.
+    * ``collect`` (False): keep, per robot, what its task underway could teach: the tracker's
+      steps (up to ``run_steps``). ``POST /robots/{robot}/learn`` then stores them as a
+      learned change when the task arrived.
     * ``run_steps`` (3000 frames): the tracker steps kept for learned transitions (two
       ``(n_fine,)`` float64 arrays each; 0: learn no transitions).
     """
 
     collect: bool = False
-    experiences_per_image: int = 2
     run_steps: int = 3000
 
     def __post_init__(self) -> None:
-        if self.experiences_per_image < 0 or self.run_steps < 0:
-            raise ValueError("experiences_per_image and run_steps must be >= 0")
+        if self.run_steps < 0:
+            raise ValueError("run_steps must be >= 0")
 
 
 def two_appearance_models() -> EngineParams:

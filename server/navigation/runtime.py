@@ -343,13 +343,6 @@ class TourRuntime:
         n = self.graph.edges[edge].n_images
         return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
 
-    def add_experiences(self, items: Sequence[tuple[int, ImageFeatures]]) -> int:
-        """Add ``(canonical taught image index, features)`` experiences to the index (after
-        the weights and the distinctiveness: those stay the taught images'); how many."""
-        if items:
-            self.index.add_experiences([f for _, f in items], [i for i, _ in items])
-        return len(items)
-
     def observe(self, features: ImageFeatures) -> tuple[tuple[Similarity, ...], FloatArray]:
         """Engine similarities of a frame under every appearance model
         (:meth:`TourIndex.query_models`) and the ``(K, n_fine)`` likelihoods they give, one row

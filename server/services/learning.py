@@ -1,11 +1,9 @@
 """Learning from repeat runs: collect what a task could teach, store it as undoable changes.
 
 A :class:`NavigationObserver`: while ``NavigationParams.learning.collect`` is on, every task
-keeps the frames its tracker localised on an edge (the last frame per taught image) and the
-tracker's own steps. When the task has arrived, ``POST /robots/{robot}/learn`` stores them as
-two learned changes of the tour (docs/learning.md): an *experience* (the frames, another
-appearance of the images they were localised at) and *transitions* (the run's expected motion
-counts, :mod:`server.belief.learning`). Every change is listed per tour and can be removed;
+keeps its tracker's steps. When the task has arrived, ``POST /robots/{robot}/learn`` stores
+them as a learned change of the tour (docs/learning.md): *transitions* (the run's expected
+motion counts, :mod:`server.belief.learning`). Every change is listed per tour and can be removed;
 the tour's runtime is rebuilt from what remains, so removing every change gives back exactly
 the taught behaviour.
 """
@@ -15,7 +13,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from server import schemas
 from server.belief.learning import TransitionCounts, expected_motion_counts
@@ -23,9 +21,8 @@ from server.belief.model import BeliefModel
 from server.errors import Conflict
 from server.navigation import NavigationParams
 from server.services.navigation import NavigationObserver
-from server.session import RobotSession, StepRecord
+from server.session import RobotSession
 from server.storage.repo import LearnedChangeRow, Repo
-from server.vision.features import ImageFeatures
 
 
 @dataclass
@@ -36,7 +33,6 @@ class _Run:
     task_id: int
     started: float
     model: BeliefModel
-    frames: dict[int, ImageFeatures] = field(default_factory=dict)  # taught image id -> frame
     session: RobotSession | None = None
     state: str = "underway"
 
@@ -90,30 +86,6 @@ class LearningService(NavigationObserver):
         with self._lock:
             self._runs[robot] = run
 
-    def stepped(
-        self,
-        robot: str,
-        session: RobotSession,
-        step: StepRecord,
-        result: schemas.NavigationFrameResult,
-        meta: schemas.FrameMeta,
-        wall: float,
-    ) -> None:
-        run = self._runs.get(robot)
-        s = step.summary
-        if run is None or run.state != "underway" or not s.localised:
-            return
-        graph = session.runtime.graph
-        state = s.localised_state
-        if state is None or state < graph.n_locations or session.runtime.model is not run.model:
-            return  # at a place, or the tour was rebuilt meanwhile
-        edge = state - graph.n_locations
-        k = int(s.best_image[edge])
-        if k < 0:
-            return
-        image_id = int(graph.image_ids[session.runtime.edge_image(edge, k)])
-        run.frames[image_id] = step.features
-
     def task_ended(self, robot: str, task: schemas.TaskPublic) -> None:
         run = self._runs.get(robot)
         if run is not None:
@@ -135,18 +107,6 @@ class LearningService(NavigationObserver):
         source = f"robot {robot}, task {run.task_id} started {_iso(run.started)}"
         now = self.clock()
         made: list[int] = []
-        if run.frames and self.params.experiences_per_image > 0:
-            made.append(
-                self.repo.add_learned_change(
-                    run.tour_id,
-                    "experience",
-                    source=source,
-                    summary=f"{len(run.frames)} images of the run as another appearance",
-                    now=now,
-                    experiences=[(i, f.to_bytes()) for i, f in sorted(run.frames.items())],
-                    max_per_image=self.params.experiences_per_image,
-                )
-            )
         counts = self._counts(run)
         if counts is not None:
             made.append(

@@ -255,18 +255,7 @@ class NavigationService:
         if len(rt.index.model_weights()) > 1:
             rt.error_levels()  # the change evidence's scale, before the first frame needs it
         self._distinctiveness(tour_id, rt)
-        self._experiences(tour_id, rt)
         return rt
-
-    def _experiences(self, tour_id: int, rt: TourRuntime) -> None:
-        """The tour's stored experiences (docs/learning.md) into its index."""
-        canonical = {int(i): k for k, i in enumerate(rt.graph.image_ids)}
-        items = []
-        for image_id, blob in self.repo.experiences(tour_id):
-            feats = _stored_features(blob, self.params.features)
-            if feats is not None and image_id in canonical:
-                items.append((canonical[image_id], feats))
-        rt.add_experiences(items)
 
     def _distinctiveness(self, tour_id: int, rt: TourRuntime) -> None:
         """The images' entropies: stored when computed over this very set of images, else

@@ -780,36 +780,19 @@ class Repo:
         summary: str,
         now: float,
         counts: bytes | None = None,
-        experiences: Sequence[tuple[int, bytes]] = (),
-        max_per_image: int | None = None,
         edge_id: int | None = None,
     ) -> int:
-        """Store one change with its ``experiences`` (``(image id, features)``); with
-        ``max_per_image``, the oldest experiences of an image beyond it are dropped (their
-        change keeps its other images); ``edge_id``: the edge the change added (removed with
-        it). Returns the change's id."""
+        """Store one change; ``edge_id``: the edge the change added (removed with it).
+        Returns the change's id."""
         if kind not in LEARNED_KINDS:
             raise ValueError(f"unknown learned change kind {kind!r}")
         with self.transaction():
-            change = self._insert(
+            return self._insert(
                 "INSERT INTO learned_changes "
                 "(tour_id, kind, created_at, source, summary, counts, edge_id) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?)",
                 (tour_id, kind, now, source, summary, counts, edge_id),
             )
-            for image_id, blob in experiences:
-                self._x(
-                    "INSERT INTO experiences (change_id, image_id, features, created_at) "
-                    "VALUES (?, ?, ?, ?)",
-                    (change, int(image_id), blob, now),
-                )
-                if max_per_image is not None:
-                    self._x(
-                        "DELETE FROM experiences WHERE image_id = ? AND id NOT IN (SELECT id "
-                        "FROM experiences WHERE image_id = ? ORDER BY id DESC LIMIT ?)",
-                        (int(image_id), int(image_id), int(max_per_image)),
-                    )
-        return change
 
     def learned_changes(self, tour_id: int) -> list[LearnedChangeRow]:
         """The tour's learned changes, oldest first, each with its number of images."""
@@ -1032,15 +1015,6 @@ class Repo:
             (tour_id,),
         )
         return [bytes(r[0]) for r in rows]
-
-    def experiences(self, tour_id: int) -> list[tuple[int, bytes]]:
-        """``(taught image id, features)`` of every experience of the tour, in insertion order."""
-        rows = self._q(
-            "SELECT e.image_id, e.features FROM experiences e JOIN learned_changes c "
-            "ON c.id = e.change_id WHERE c.tour_id = ? ORDER BY e.id",
-            (tour_id,),
-        )
-        return [(int(i), bytes(b)) for i, b in rows]
 
     # --- teaching state -------------------------------------------------------------------
 

@@ -272,8 +272,6 @@ class TourIndex:
         self._desc = np.zeros((0, self._k, self._d), np.uint8)
         self._nkp = np.zeros(0, np.int16)
         self._state = np.zeros(0, np.int64)
-        self._alias = np.zeros(0, np.int64)  # the taught image each stored entry stands for
-        self._n_taught = 0  # entries [0, n_taught) are taught images, the rest experiences
         self._order: IntArray | None = None  # images sorted by state (lazy)
         self._sorted = True  # states already non-decreasing in insertion order
         self._seg_starts = np.zeros(0, np.int64)
@@ -295,26 +293,7 @@ class TourIndex:
 
     @property
     def n_images(self) -> int:
-        """Stored entries: the taught images, then the experiences (:meth:`add_experiences`)."""
         return self._n
-
-    @property
-    def n_taught(self) -> int:
-        """Taught images; every result (:class:`Similarity`) is indexed by these."""
-        return self._n_taught
-
-    def add_experiences(self, features: Sequence[ImageFeatures], taught: npt.ArrayLike) -> None:
-        """Store more appearances of taught images (images of repeat runs, VT&R's
-        "experiences"; docs/learning.md). ``taught``: ``(len(features),)`` index of the taught
-        image each one stands for. A query scores them like any image and answers, per taught
-        image, the best of it and its experiences, so results keep ``n_taught`` entries and
-        an index without experiences answers exactly as before."""
-        idx = np.asarray(taught, np.int64).ravel()
-        if len(idx) != len(features):
-            raise ValueError(f"{len(features)} experiences but {len(idx)} taught images")
-        if len(idx) and (idx.min() < 0 or idx.max() >= self._n_taught):
-            raise ValueError(f"taught image indices must lie in [0, {self._n_taught})")
-        self._append(features, self._state[idx], idx)
 
     @property
     def states(self) -> IntArray:
@@ -370,7 +349,6 @@ class TourIndex:
         self._desc = grown(self._desc)
         self._nkp = grown(self._nkp)
         self._state = grown(self._state)
-        self._alias = grown(self._alias)
         self._cap = cap
 
     def add(self, features: Sequence[ImageFeatures], states: npt.ArrayLike) -> None:
@@ -383,14 +361,6 @@ class TourIndex:
                 ``params.features``.
             states: ``(len(features),)`` int, the upper state of each image (>= 0).
         """
-        if self._n_taught < self._n:
-            raise ValueError("taught images must all be added before any experience")
-        self._append(features, states, None)
-
-    def _append(
-        self, features: Sequence[ImageFeatures], states: npt.ArrayLike, alias: IntArray | None
-    ) -> None:
-        """Append entries; ``alias`` None: taught images, else the taught image of each."""
         st = np.asarray(states, np.int64).ravel()
         if len(st) != len(features):
             raise ValueError(f"{len(features)} images but {len(st)} states; give one per image")
@@ -421,11 +391,6 @@ class TourIndex:
             self._desc[lo + j, k:] = 0
             self._nkp[lo + j] = k
         self._state[lo:hi] = st
-        if alias is None:
-            self._alias[lo:hi] = np.arange(lo, hi)
-            self._n_taught = hi
-        else:
-            self._alias[lo:hi] = alias
         self._n = hi
         self._order = None
         self._update_inverted_files(lo)
@@ -472,10 +437,9 @@ class TourIndex:
         out._grow(n)
         for mine, theirs in zip(self._blocks, out._blocks, strict=True):
             theirs[:n] = mine[:n]
-        for name in ("_sqn", "_kp", "_desc", "_nkp", "_state", "_alias"):
+        for name in ("_sqn", "_kp", "_desc", "_nkp", "_state"):
             getattr(out, name)[:n] = getattr(self, name)[:n]
         out._n = n
-        out._n_taught = self._n_taught  # the rest are experiences (add_experiences)
         out._weights = self._weights.copy()
         out._update_inverted_files(0)
         return out
@@ -886,7 +850,7 @@ class TourIndex:
         Returns:
             the best errors, ascending; empty when no image has an unrelated state.
         """
-        n = self._n_taught
+        n = self._n
         states = self._state[:n]
         if n == 0:
             return np.zeros(0)
@@ -989,20 +953,8 @@ class TourIndex:
             for sim, b in zip(out, best_errors, strict=True)
         )
 
-    def _fold(self, cand: IntArray, sim_c: FloatArray) -> tuple[IntArray, FloatArray]:
-        """Candidates as taught images: an experience stands for its taught image, which gets
-        the best similarity of itself and its experiences."""
-        if self._n_taught == self._n:
-            return cand, sim_c
-        taught = self._alias[cand]
-        order = np.lexsort((-sim_c, taught))
-        t = taught[order]
-        first = np.r_[True, t[1:] != t[:-1]]
-        return t[first], sim_c[order][first]
-
     def _similarity(self, cand: IntArray, sim_c: FloatArray, ns: int) -> Similarity:
         """The :class:`Similarity` of the candidates' similarities ``sim_c`` (timings 0)."""
-        cand, sim_c = self._fold(cand, sim_c)
         image = self._spread(cand, sim_c, ns)
         state = np.full(ns, self.params.floor, np.float64)
         np.maximum.at(state, self._state[cand], sim_c)
@@ -1026,7 +978,7 @@ class TourIndex:
         """Per-image similarity: candidates keep theirs, others get ``outside_factor`` times the
         smallest candidate similarity of their state, never below ``floor``."""
         p = self.params
-        n = self._n_taught
+        n = self._n
         smallest = np.full(n_states, np.inf)
         np.minimum.at(smallest, self._state[cand], sim_c)
         smallest[~np.isfinite(smallest)] = p.floor

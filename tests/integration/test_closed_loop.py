@@ -60,14 +60,14 @@ def three_places_taught(
         yield client, robot, plan, graph
 
 
-def test_teach_three_places_go_to_one_and_keep_the_run_as_experiences_and_transitions(
+def test_teach_three_places_go_to_one_and_keep_the_run_as_transitions(
     collecting_server: ServerProcess,
 ) -> None:
     """Teach three places, carry the robot into the corridor facing away from the office, and
     send it there: it arrives within 0.5 m. Then learning from that run end to end (issue 25
-    parts 3, 4 and 6): ``POST /robots/{robot}/learn`` keeps its images as experiences of the
-    images they matched and its motion as learned transitions; both are listed, a second learn
-    finds nothing left of that task, and removing them leaves the tour as it was taught.
+    parts 4 and 6): ``POST /robots/{robot}/learn`` keeps its motion as learned transitions;
+    they are listed, a second learn finds nothing left of that task, and removing them leaves
+    the tour as it was taught.
 
     (A second trial from the same spot is not part of this test: on this tour it arrives at
     the wrong place 5 m off with or without what was learned, while spinning in the hall; see
@@ -80,15 +80,14 @@ def test_teach_three_places_go_to_one_and_keep_the_run_as_experiences_and_transi
         assert not first.wrong_arrival
 
         changes = client.learn("sim")
-        assert sorted(c.kind for c in changes) == ["experience", "transitions"], changes
-        experience = next(c for c in changes if c.kind == "experience")
-        assert experience.images > 0 and experience.tour == graph.id
+        assert [c.kind for c in changes] == ["transitions"], changes
+        assert changes[0].tour == graph.id
         assert sorted(c.id for c in client.learned(graph.id)) == sorted(c.id for c in changes)
         assert all(c.source and c.summary for c in changes)
         with pytest.raises(ApiError) as nothing_left:  # the task's frames were taken
             client.learn("sim")
         assert nothing_left.value.status == 409
-        assert len(client.learned(graph.id)) == 2
+        assert len(client.learned(graph.id)) == 1
 
         for change in changes:
             client.unlearn(graph.id, change.id)

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from server.errors import IntegrityViolation, NotFound, Unavailable
 from server.storage.database import open_database
 from server.storage.migrations import MIGRATIONS, current_version, migrate
-from server.storage.repo import Repo
+from server.storage.repo import FrameRow, Repo
 
 
 @pytest.fixture()
@@ -415,48 +415,46 @@ def test_a_schema_4_database_upgrades_losing_nothing(store: Path | str) -> None:
     try:
         assert repo.schema_version == MIGRATIONS[-1][0] >= 5
         assert _rows(repo.db, before) == before
-        assert repo.learned_changes(7) == [] and repo.experiences(7) == []
-        assert repo.transition_counts(7) == []
+        assert repo.learned_changes(7) == []
         assert repo.integrity_ok()
     finally:
         repo.close()
 
 
-def test_learned_changes_are_listed_pruned_and_removed(repo: Repo) -> None:
+def test_learned_changes_are_listed_and_removed_with_what_they_added(repo: Repo) -> None:
+    """A look-alike pair and a new path (what answers to questions make): listed oldest
+    first with the images of the edge a change added; removing one takes what it added with
+    it (its look-alike pair; its edge and the edge's images) and nothing else."""
     tour = repo.add_tour("home").id
     with repo.transaction():
-        a = repo.add_location(tour, "a")
-    img = add(repo, tour, location_id=a)
-    one = repo.add_learned_change(
-        tour, "experience", source="run 1", summary="s", now=1.0, experiences=[(img, b"x1")]
-    )
-    two = repo.add_learned_change(
-        tour,
-        "experience",
-        source="run 2",
-        summary="s",
-        now=2.0,
-        experiences=[(img, b"x2")],
-        max_per_image=1,
-    )
-    counts = repo.add_learned_change(
-        tour, "transitions", source="run 2", summary="c", now=2.0, counts=b"\0" * 24
-    )
+        hall = repo.add_location(tour, "hall")
+        kitchen = repo.add_location(tour, "kitchen")
+    spin = add(repo, tour, location_id=hall)
+    frame = FrameRow(1.0, 0.2, 0.0, 64, 48, make_jpeg(), None)
+    with repo.transaction():
+        alike = repo.add_learned_change(tour, "look_alike", source="q 1", summary="s", now=1.0)
+        repo.add_look_alike(alike, hall, None, spin)
+        edge = repo.add_edge_with_images(tour, hall, kitchen, [frame, frame])
+        path = repo.add_learned_change(
+            tour, "new_path", source="q 2", summary="p", now=2.0, edge_id=edge
+        )
     rows = repo.learned_changes(tour)
-    assert [(r.id, r.kind, r.images) for r in rows] == [
-        (one, "experience", 0),  # its only image was pruned: the oldest goes first
-        (two, "experience", 1),
-        (counts, "transitions", 0),
+    assert [(r.id, r.kind, r.images, r.edge_id) for r in rows] == [
+        (alike, "look_alike", 0, None),
+        (path, "new_path", 2, edge),
     ]
-    assert repo.experiences(tour) == [(img, b"x2")]
-    assert repo.transition_counts(tour) == [b"\0" * 24]
+    assert repo.look_alike_images(hall) == {spin}
+    with pytest.raises(ValueError, match="unknown learned change kind"):
+        repo.add_learned_change(tour, "guess", source="q", summary="s", now=3.0)
     with pytest.raises(NotFound, match="no learned change"):
         repo.remove_learned_change(tour, 999)
     other = repo.add_tour("other").id
     with pytest.raises(NotFound):
-        repo.remove_learned_change(other, two)
-    repo.remove_learned_change(tour, two)
-    assert repo.experiences(tour) == [] and len(repo.learned_changes(tour)) == 2
+        repo.remove_learned_change(other, path)
+    repo.remove_learned_change(tour, path)
+    assert [e.id for e in repo.edges(tour)] == [] and repo.graph(tour).n_images == 1
+    repo.remove_learned_change(tour, alike)
+    assert repo.learned_changes(tour) == [] and repo.look_alike_images(hall) == set()
 
 
 def test_a_lost_postgresql_connection_is_opened_again(postgres_url: str) -> None:
