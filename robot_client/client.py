@@ -253,12 +253,6 @@ class TeachRepeatClient:
         """Stop whatever the robot does (driving by hand, a spin, a navigation task)."""
         return self._call(schemas.RobotState, "POST", f"/robots/{robot}/halt")
 
-    def learn(self, robot: str) -> list[schemas.LearnedChange]:
-        """Keep what the robot's last (arrived) task taught, as learned changes of its tour."""
-        return TypeAdapter(list[schemas.LearnedChange]).validate_json(
-            self._request("POST", f"/robots/{robot}/learn").content
-        )
-
     def learned(self, tour: int) -> list[schemas.LearnedChange]:
         """The tour's learned changes (docs/learning.md)."""
         return self._list(schemas.LearnedChange, f"/tours/{tour}/learned")

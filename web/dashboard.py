@@ -53,7 +53,7 @@ from pydantic import ValidationError
 from server import schemas
 from server.errors import Conflict, DomainError, NotFound
 from server.layout import GraphLayout, fine_position, graph_layout, tracked_position
-from server.services.learning import change_public
+from server.services.questions import change_public
 from web.ambiguity import distinctiveness_text, step_lines
 from web.drive import DRIVE_HZ, HOLD_TTL_S, drive_command
 from web.imagery import (
@@ -235,7 +235,7 @@ class Dashboard:
             if self.household is None:
                 rows = self.services.repo.learned_changes(tour_id)
                 return [change_public(r) for r in rows]
-            return self.services.learning.changes(tour_id, self.household)
+            return self.services.questions.changes(tour_id, self.household)
         except DomainError:
             return []
 

@@ -308,9 +308,9 @@ def questions_text(questions: Sequence[QuestionPublic], now: float | None = None
 
 def learned_text(changes: Sequence[LearnedChange]) -> str:
     """The selected tour's learned changes (docs/learning.md), newest first: what, when, from
-    which run; undo one with DELETE /tours/{tour}/learned/{id}."""
+    which question; undo one with DELETE /tours/{tour}/learned/{id}."""
     if not changes:
-        return "*The tour has learned nothing from repeat runs.*"
+        return "*The tour has learned nothing from answered questions.*"
     lines = [
         f"- **#{c.id} {c.kind}** {time.strftime('%Y-%m-%d %H:%M', time.gmtime(c.created_at))}"
         f": {inert(c.summary)} (from {inert(c.source)})"

@@ -391,16 +391,9 @@ class BeliefModel:
     """How many per-action structure matrices are kept (~2 MB each at 10 000 images)."""
     # motion matrices are ~1 MB each at 10 000 images
 
-    def __init__(
-        self,
-        graph: TourGraph,
-        params: TransitionParams | None = None,
-        *,
-        advance_scale: npt.ArrayLike | None = None,
-    ) -> None:
+    def __init__(self, graph: TourGraph, params: TransitionParams | None = None) -> None:
         self.graph = graph
         self.params = params if params is not None else TransitionParams()
-        self.advance_scale: FloatArray | None = _check_scale(advance_scale, graph.n_edges)
         p = self.params
         self.n_locations = graph.n_locations
         self.n_edges = graph.n_edges
@@ -477,15 +470,10 @@ class BeliefModel:
         return out
 
     def expected_advance(self, *, v: float, dt: float, w: float = 0.0) -> FloatArray:
-        """Like :func:`expected_advance`, from cached per-edge distances, times the learned
-        ``advance_scale`` when the model has one (:mod:`server.belief.learning`). ``(n_edges,)``
-        images."""
-        out = _advance_from(
+        """Like :func:`expected_advance`, from cached per-edge distances. ``(n_edges,)`` images."""
+        return _advance_from(
             self.metres_per_image, self.seconds_per_image, self.progress_speed(v, w), float(dt)
         )
-        if self.advance_scale is not None:
-            out = out * self.advance_scale
-        return out
 
     def progress_speed(self, v: float, w: float = 0.0) -> float:
         """``|v| + turn_radius_m |w|`` (m/s); ``nan`` stays ``nan`` (speed unknown)."""
@@ -870,26 +858,6 @@ def mix_prior(x: FloatArray, prior: FloatArray, eps: float) -> FloatArray:
     return out
 
 
-def _check_scale(scale: npt.ArrayLike | None, n_edges: int) -> FloatArray | None:
-    """``(n_edges,)`` finite > 0 learned advance scale, or None (the taught model)."""
-    if scale is None:
-        return None
-    a = np.array(scale, dtype=np.float64)
-    if a.shape != (n_edges,) or not np.all(np.isfinite(a)) or np.any(a <= 0):
-        raise ValueError(
-            f"advance_scale must be ({n_edges},), finite and > 0 (one factor per edge; "
-            "server.belief.learning.advance_scale)"
-        )
-    return a
-
-
-def build_model(
-    graph: TourGraph,
-    params: TransitionParams | None = None,
-    *,
-    advance_scale: npt.ArrayLike | None = None,
-) -> BeliefModel:
-    """Build the transition model of ``graph`` (same as ``BeliefModel(graph, params)``);
-    ``advance_scale`` (``(n_edges,)``) multiplies the taught advance per edge (learned
-    transitions, :mod:`server.belief.learning`; None = the taught model)."""
-    return BeliefModel(graph, params, advance_scale=advance_scale)
+def build_model(graph: TourGraph, params: TransitionParams | None = None) -> BeliefModel:
+    """Build the transition model of ``graph`` (same as ``BeliefModel(graph, params)``)."""
+    return BeliefModel(graph, params)

@@ -33,7 +33,6 @@ from server.belief.appearance import (
     posterior,
     update_log_posterior,
 )
-from server.belief.learning import FilterStep
 from server.belief.model import (
     Action,
     BeliefModel,
@@ -187,9 +186,6 @@ class TrackerParams:
       motion matrices are reused from frame to frame (a 1% error in the expected advance).
     * ``top_k`` (5): how many upper states :attr:`BeliefSummary.top_states` lists.
     * ``smoother_lag`` (10): steps kept for the fixed-lag smoother (0 disables it).
-    * ``keep_run`` (0): keep up to this many filter steps of the run since the last reset
-      (:meth:`Tracker.run`), for learning transitions from it (:mod:`server.belief.learning`;
-      two ``(n_fine,)`` arrays per step). 0: keep none.
     * ``appearance``: how the belief over appearance models follows the evidence when
       :meth:`Tracker.step` gets one likelihood per model (:mod:`server.belief.appearance`).
     """
@@ -207,7 +203,6 @@ class TrackerParams:
     motion_quantum: float = 0.02
     top_k: int = 5
     smoother_lag: int = 10
-    keep_run: int = 0
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
 
     def __post_init__(self) -> None:
@@ -224,8 +219,8 @@ class TrackerParams:
         changed = self.changed_likelihood_power
         if not (self.likelihood_power > 0 and (changed is None or changed > 0)):
             raise ValueError("likelihood_power and changed_likelihood_power must be > 0")
-        if self.top_k < 1 or self.smoother_lag < 0 or self.keep_run < 0:
-            raise ValueError("top_k must be >= 1, smoother_lag and keep_run >= 0")
+        if self.top_k < 1 or self.smoother_lag < 0:
+            raise ValueError("top_k must be >= 1 and smoother_lag >= 0")
 
 
 @dataclass(frozen=True)
@@ -439,7 +434,6 @@ class Tracker:
         self._steps = 0
         self._appearance = np.zeros(0)  # log posterior over appearance models; empty = none yet
         self._familiar = math.nan  # running mean of the frames' familiarity; NaN = none yet
-        self._run: list[FilterStep] = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -470,7 +464,6 @@ class Tracker:
             self._appearance = np.asarray(memory.appearance, np.float64)
             self._familiar = float(memory.familiar)
             self._fast, self._slow = float(memory.evidence_fast), float(memory.evidence_slow)
-        self._run = [FilterStep(None, 0.0, None, self._belief.copy())]
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -553,8 +546,6 @@ class Tracker:
         self._steps += 1
         if self._smoother is not None:
             self._smoother.push(op, eps, lik, post)
-        if len(self._run) <= p.keep_run:
-            self._run.append(FilterStep(op, eps, lik, post))
         # conservative "localised"
         state = m.upper_mass(post)
         top = int(np.argmax(state))
@@ -593,11 +584,6 @@ class Tracker:
                 v = math.exp(round(math.log(dist) / step) * step) / dt_q
             dt = dt_q
         return self.model.expected_advance(v=v, dt=dt)
-
-    def run(self) -> list[FilterStep]:
-        """The kept filter steps since the last reset, the start first (at most
-        ``1 + keep_run``; :func:`server.belief.learning.expected_motion_counts` takes them)."""
-        return list(self._run)
 
     def smoothed(self) -> SmoothedTrajectory | None:
         """Fixed-lag smoothed estimate of the last ``smoother_lag`` steps (None if disabled)."""

@@ -45,7 +45,6 @@ from server.bench.localize_ambiguity import figures as ambiguity_figures
 from server.threads import pin_threads
 
 if TYPE_CHECKING:
-    from server.belief.learning import FilterStep
     from server.belief.model import Action, TransitionParams
     from server.belief.tracker import TrackerParams
     from server.domain import TourGraph
@@ -176,20 +175,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "once the change gate is open, interpolated from --likelihood-power as it opens: a "
         "number, 'navigation' (the default: navigation's own, 0.75) or 'none' "
         "(--likelihood-power at every frame; docs/localize.md)",
-    )
-    parser.add_argument(
-        "--query-every",
-        type=int,
-        default=1,
-        metavar="N",
-        help="replay only every N-th query frame: a robot driving N times the taught pace "
-        "while its odometry says the taught pace (default 1; docs/learning.md)",
-    )
-    parser.add_argument(
-        "--learn-transitions",
-        action="store_true",
-        help="also report every figure with learned transitions (001 s10.1): learned on one "
-        "half of the query traversal, scored on the other, both ways (docs/learning.md)",
     )
     parser.add_argument("--no-table1", action="store_true", help="skip the Table 1 protocol")
     parser.add_argument(
@@ -528,20 +513,6 @@ class Replay:
     light_change: list[float] = field(default_factory=list)
     """Per frame, the change evidence the tracker weighed the models with (1 with one model;
     :mod:`server.belief.appearance`)."""
-    observations: list[Observation] = field(default_factory=list)
-    """Per frame, what the engine said (to replay the tracker alone, ``--learn-transitions``)."""
-    run: list[FilterStep] = field(default_factory=list)
-    """The tracker's steps (with ``TrackerParams.keep_run``), for learning transitions."""
-
-
-@dataclass(frozen=True)
-class Observation:
-    """One frame's engine answer: ``(K, n_fine)`` likelihoods, the retrieval's best image,
-    the change-robust model's share is not kept (a tracker-only replay recomputes it)."""
-
-    likelihood: FloatArray
-    best_image: int
-    familiarity: float = math.nan
 
 
 def next_action(decision_action: Action, mode: str) -> Action:
@@ -567,13 +538,8 @@ def replay(
     tracker_params: TrackerParams,
     action_mode: str,
     progress: bool = True,
-    observations: Sequence[Observation] | None = None,
-    advance_scale: FloatArray | None = None,
 ) -> Replay:
-    """Drive the query traversal through engine, tracker and policy (see the module doc).
-    ``observations`` (one per query frame, from an earlier replay's
-    :attr:`Replay.observations`) skip the engine; ``advance_scale`` gives the belief model
-    learned transitions (:mod:`server.belief.learning`)."""
+    """Drive the query traversal through engine, tracker and policy (see the module doc)."""
     from server.belief.appearance import familiarity
     from server.belief.model import Action, build_model
     from server.belief.tracker import Tracker, fine_likelihood
@@ -583,7 +549,7 @@ def replay(
     from server.vision.features import extract
 
     graph = tour.graph
-    model = build_model(graph, transitions, advance_scale=advance_scale)
+    model = build_model(graph, transitions)
     model.warm_up()
     tracker = Tracker(model, tracker_params)
     goal = graph.n_locations - 1
@@ -591,9 +557,7 @@ def replay(
     fp = index.params.features
     levels = (
         index.error_levels(related_states(graph))
-        if observations is None
-        and index.params.changed_weights is not None
-        and tracker_params.appearance.change_gate
+        if index.params.changed_weights is not None and tracker_params.appearance.change_gate
         else np.zeros(0)
     )
     out = Replay()
@@ -602,18 +566,12 @@ def replay(
     action = Action.navigate(None)
     for i, (qf, img) in enumerate(zip(query_frames, query_images, strict=True)):
         t0 = time.perf_counter()
-        if observations is None:
-            feats = extract(img, fp)
-            t1 = time.perf_counter()
-            sims = index.query_models(feats, n_states=graph.n_states)
-            lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
-            best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
-            known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
-        else:
-            t1 = t0
-            obs = observations[i]
-            lik, best, known = obs.likelihood, obs.best_image, obs.familiarity
-        out.observations.append(Observation(lik, best, known))
+        feats = extract(img, fp)
+        t1 = time.perf_counter()
+        sims = index.query_models(feats, n_states=graph.n_states)
+        lik = np.stack([fine_likelihood(s.image, graph) for s in sims])
+        best = int(np.argmax(sims[0].image))  # ir_only: retrieval with the tour's weights
+        known = familiarity(sims[0].best_error, levels) if len(sims) > 1 else math.nan
         t2 = time.perf_counter()
         summary = tracker.step(action, lik, v=SPEED, dt=FRAME_DT, familiarity=known)
         decision = decide(graph, summary.belief, goal, costs)
@@ -645,7 +603,6 @@ def replay(
         if progress and (i + 1) % 200 == 0:
             print(f"  {i + 1}/{n} frames")
     out.smoother = [s if s is not None else t for s, t in zip(smoothed, out.tracker, strict=True)]
-    out.run = tracker.run()
     return out
 
 
@@ -938,8 +895,6 @@ class RunSettings:
     tracker: TrackerParams
     action: str
     learn_params: LearnParams = field(default_factory=lambda: _learn_params(0))
-    learn_transitions: bool = False
-    tolerances: tuple[int, ...] = REPORT_TOLERANCES
 
 
 @dataclass(frozen=True)
@@ -973,7 +928,6 @@ class DirectionRun:
     replay: Replay
     errors: dict[str, FloatArray]
     build_s: float
-    learned: dict[str, Any] | None = None
 
 
 def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
@@ -1011,12 +965,7 @@ def run_direction(plan: DirectionPlan, settings: RunSettings) -> DirectionRun:
     )
     estimates = {"ir_only": res.ir_only, "tracker": res.tracker, "smoother": res.smoother}
     errs = {m: errors(res.query, estimates[m], plan.gt) for m in METHODS}
-    d = DirectionRun(plan, tour, index, ref_feats, res, errs, build_s)
-    if settings.learn_transitions:
-        from server.bench.localize_learn import learned_figures
-
-        d = dataclasses.replace(d, learned=learned_figures(d, settings, settings.tolerances))
-    return d
+    return DirectionRun(plan, tour, index, ref_feats, res, errs, build_s)
 
 
 def per_frame(res: Replay) -> dict[str, Any]:
@@ -1077,8 +1026,6 @@ def direction_summary(
     }
     if halves:
         out["halves"] = halves_scores(d.errors, tols)
-    if d.learned is not None:
-        out["learned_transitions"] = d.learned
     return out
 
 
@@ -1087,16 +1034,12 @@ def plan_directions(
 ) -> list[DirectionPlan]:
     """The forward run and, with ``--both-directions``, the reverse one (the traversals
     swapped, the ground truth inverted), each restricted to ``--half``; ``ValueError`` if a
-    run would have too few frames. With ``--query-every N`` each run replays every N-th of
-    its query frames."""
-    every = max(1, int(getattr(args, "query_every", 1)))
+    run would have too few frames."""
     qry, ref = select_half(qry_frames, ref_frames, gt, args.half)
-    qry = qry[::every]
     plans = [DirectionPlan("forward", args.reference, args.query, gt, args.gt, ref, qry)]
     if args.both_directions:
         inv = gt.inverted()
         qry, ref = select_half(ref_frames, qry_frames, inv, args.half)
-        qry = qry[::every]
         spec = args.gt if gt.matches is None else f"{args.gt} (inverted)"
         plans.append(DirectionPlan("reverse", args.query, args.reference, inv, spec, ref, qry))
     for plan in plans:
@@ -1156,8 +1099,6 @@ def run(args: argparse.Namespace) -> int:
         tracker_params,
         args.action,
         _learn_params(args.learn_changed),
-        learn_transitions=args.learn_transitions,
-        tolerances=tuple(report_tolerances(int(args.tolerance))),
     )
     tol = int(args.tolerance)
     print(f"tolerance {tol}, half {args.half}")
@@ -1194,7 +1135,6 @@ def run(args: argparse.Namespace) -> int:
         "smoother_estimate": "oldest frame of the window (lag - 1 frames late)",
         "likelihood_power": tracker_params.likelihood_power,
         "changed_likelihood_power": tracker_params.changed_likelihood_power,
-        "query_every": args.query_every,
         "build_s": fwd.build_s,
     }
     for name, e in fwd.errors.items():
@@ -1208,8 +1148,6 @@ def run(args: argparse.Namespace) -> int:
         if key in f:
             result[key] = f[key]
     result["localised_fraction"] = f["localised_fraction"]
-    if "learned_transitions" in f:
-        result["learned_transitions"] = f["learned_transitions"]
     result["recall_curve"] = {
         "tolerance": list(CURVE_TOLERANCES),
         **{
@@ -1278,10 +1216,6 @@ def _print(r: dict[str, Any]) -> None:
             f"wrong claims {d['wrong_claims']}"
         )
         print(line)
-        if "learned_transitions" in d:
-            from server.bench.localize_learn import print_figures
-
-            print_figures(name, d["learned_transitions"])
     print(
         f"belief + policy step p50 {r['step_ms_p50']:.3f} ms, engine p50 "
         f"{r['engine_ms']['p50']:.2f} ms/frame (forward)"

@@ -50,27 +50,6 @@ class AmbiguityParams:
     distinctiveness: DistinctivenessParams = field(default_factory=DistinctivenessParams)
 
 
-@dataclass(frozen=True)
-class LearningParams:
-    """Learning from repeat runs (docs/learning.md). Off by default: nothing is collected and
-    nothing learned; a tour's stored changes (``GET /tours/{id}/learned``) are used whenever
-    it has some.
-
-    * ``collect`` (False): keep, per robot, what its task underway could teach: the tracker's
-      steps (up to ``run_steps``). ``POST /robots/{robot}/learn`` then stores them as a
-      learned change when the task arrived.
-    * ``run_steps`` (3000 frames): the tracker steps kept for learned transitions (two
-      ``(n_fine,)`` float64 arrays each; 0: learn no transitions).
-    """
-
-    collect: bool = False
-    run_steps: int = 3000
-
-    def __post_init__(self) -> None:
-        if self.run_steps < 0:
-            raise ValueError("run_steps must be >= 0")
-
-
 def two_appearance_models() -> EngineParams:
     """The engine navigation uses: the defaults with the change-robust second model."""
     return EngineParams(changed_weights=CHANGED_WEIGHTS)
@@ -283,7 +262,6 @@ class NavigationParams:
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     topometric: TopometricParams = field(default_factory=TopometricParams)
-    learning: LearningParams = field(default_factory=LearningParams)
     questions: QuestionParams = field(default_factory=QuestionParams)
 
     def __post_init__(self) -> None:

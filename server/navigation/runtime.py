@@ -48,9 +48,7 @@ class TourRuntime:
         params: NavigationParams,
         *,
         version: int = 0,
-        advance_scale: npt.ArrayLike | None = None,
     ) -> None:
-        """``advance_scale``: learned transitions (``(n_edges,)``, docs/learning.md)."""
         if len(features) != graph.n_images:
             raise ValueError(f"{len(features)} features for {graph.n_images} images")
         self.graph = graph
@@ -61,9 +59,7 @@ class TourRuntime:
         self.index = TourIndex(params.engine)
         if graph.n_images:
             self.index.add(self.features, graph.image_state)
-        self.model: BeliefModel = build_model(
-            graph, params.transitions, advance_scale=advance_scale
-        )
+        self.model: BeliefModel = build_model(graph, params.transitions)
         self._costs = lru_cache(maxsize=64)(self._cost_to_goal)
         # canonical index of edge e's first image
         self._edge_first = graph.n_images - int(graph.edge_offsets[-1]) + graph.edge_offsets

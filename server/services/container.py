@@ -15,7 +15,6 @@ from server.recording.recorder import Recorder
 from server.recording.store import RecordingStore, Retention
 from server.services.control import ControlParams, ControlService
 from server.services.households import HouseholdService, Identities, LoginParams
-from server.services.learning import LearningService
 from server.services.navigation import NavigationService
 from server.services.questions import QuestionService
 from server.services.teaching import TeachingService
@@ -35,7 +34,6 @@ class Services:
     teaching: TeachingService
     navigation: NavigationService
     recordings: Recorder
-    learning: LearningService
     questions: QuestionService
     control: ControlService
 
@@ -80,8 +78,6 @@ class Services:
         )
         nav.observers.append(recorder)
         teaching.observers.append(recorder)
-        learning = LearningService(repo, nav.params, nav.tour_changed)
-        nav.observers.append(learning)
         questions = QuestionService(
             repo, teaching, nav, limits, nav.params.questions, clock=wall_clock
         )
@@ -101,7 +97,6 @@ class Services:
             teaching=teaching,
             navigation=nav,
             recordings=recorder,
-            learning=learning,
             questions=questions,
             control=driving,
         )

@@ -8,7 +8,6 @@ server resumes a navigation where it was instead of starting from a uniform beli
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
 import logging
 import threading
@@ -18,7 +17,6 @@ from collections.abc import Callable
 import numpy as np
 
 from server import schemas
-from server.belief.learning import TransitionCounts, advance_scale
 from server.belief.tracker import BeliefError, BeliefSummary, TrackerMemory
 from server.domain import TourGraph
 from server.errors import Conflict, DomainError, Invalid, NotFound
@@ -96,11 +94,7 @@ class NavigationService:
         self.repo = repo
         self.shared_store = shared_store
         self.limits = limits
-        params = params if params is not None else NavigationParams()
-        if params.learning.collect and params.tracker.keep_run < params.learning.run_steps:
-            tracker = dataclasses.replace(params.tracker, keep_run=params.learning.run_steps)
-            params = dataclasses.replace(params, tracker=tracker)
-        self.params = params
+        self.params = params if params is not None else NavigationParams()
         self.is_teaching = is_teaching
         self.clock = clock
         self._steps = threading.BoundedSemaphore(concurrent_steps)
@@ -236,13 +230,8 @@ class NavigationService:
         graph = self.repo.graph(tour_id)
         if graph.n_locations == 0:
             raise Conflict(f"tour {tour_id} has no places yet; teach it first")
-        scale = learned_scale(self.repo, tour_id, graph.n_edges)
         rt = TourRuntime(
-            graph,
-            self._features([int(i) for i in graph.image_ids]),
-            self.params,
-            version=version,
-            advance_scale=scale,
+            graph, self._features([int(i) for i in graph.image_ids]), self.params, version=version
         )
         rt.taught_pixels = self._pixels([int(i) for i in graph.image_ids])
         depths = self.repo.depths([int(i) for i in graph.image_ids])
@@ -570,21 +559,6 @@ class NavigationService:
         """A copy of the live sessions (for the dashboard)."""
         with self._lock:
             return dict(self._sessions)
-
-
-def learned_scale(repo: Repo, tour_id: int, n_edges: int) -> np.ndarray | None:
-    """The tour's learned advance scale from its stored transition changes (None: none, the
-    taught model; docs/learning.md)."""
-    blobs = repo.transition_counts(tour_id)
-    total = TransitionCounts.zeros(n_edges)
-    used = 0
-    for blob in blobs:
-        try:
-            total = total.plus(TransitionCounts.from_bytes(blob, n_edges))
-            used += 1
-        except ValueError:
-            continue  # learned before the tour changed shape: no longer applies
-    return advance_scale(total) if used else None
 
 
 def _memory(stored: str | None) -> TrackerMemory | None:

@@ -13,9 +13,11 @@ One mechanism for two kinds (docs/learning.md):
   *yes* adds them as a new edge the planner uses, *no* discards them.
 
 Every answer that changes the map is a learned change of the tour, listed and undone with
-``GET/DELETE /tours/{id}/learned``. Questions expire after ``QuestionParams.expiry_s`` on the
-app's wall clock; an answer to an expired, answered, unknown or foreign question is refused and
-changes nothing.
+``GET/DELETE /tours/{id}/learned`` (:meth:`QuestionService.changes`,
+:meth:`QuestionService.remove_change`): the tour's runtime is rebuilt from what remains, so
+removing every change gives back exactly the taught behaviour. Questions expire after
+``QuestionParams.expiry_s`` on the app's wall clock; an answer to an expired, answered, unknown
+or foreign question is refused and changes nothing.
 """
 
 from __future__ import annotations
@@ -40,11 +42,24 @@ from server.navigation.runtime import preferred
 from server.services.navigation import NavigationObserver, NavigationService
 from server.services.teaching import MIN_EDGE_IMAGES, TeachingObserver, TeachingService
 from server.session import RobotSession, StepRecord
-from server.storage.repo import FrameRow, QuestionRow, Repo
+from server.storage.repo import FrameRow, LearnedChangeRow, QuestionRow, Repo
 from server.vision.features import ImageFeatures, extract
 from server.vision.homing import homing_scale
 
 log = logging.getLogger(__name__)
+
+
+def change_public(row: LearnedChangeRow) -> schemas.LearnedChange:
+    return schemas.LearnedChange(
+        id=row.id,
+        tour=row.tour_id,
+        kind=row.kind,  # type: ignore[arg-type]  # repo.LEARNED_KINDS, checked on insert
+        created_at=row.created_at,
+        source=row.source,
+        summary=row.summary,
+        images=row.images,
+        edge=row.edge_id,
+    )
 
 
 @dataclass
@@ -343,6 +358,18 @@ class QuestionService(TeachingObserver, NavigationObserver):
             self.navigation.tour_changed(q.tour_id)
         assert answered is not None  # written in the transaction above
         return self._public(answered)
+
+    def changes(self, tour_id: int, household: int) -> list[schemas.LearnedChange]:
+        """The tour's learned changes, oldest first (404: not the household's tour)."""
+        self.repo.tour(tour_id, household)
+        return [change_public(r) for r in self.repo.learned_changes(tour_id)]
+
+    def remove_change(self, tour_id: int, change_id: int, household: int) -> None:
+        """Undo one learned change (404: no such change of the household's tour); the tour's
+        runtime is rebuilt without it."""
+        self.repo.tour(tour_id, household)
+        self.repo.remove_learned_change(tour_id, change_id)
+        self.navigation.tour_changed(tour_id)
 
     def _same_place(self, q: QuestionRow, yes: bool, now: float) -> bool:
         place = self.repo.location_name(q.location_id)

@@ -779,7 +779,6 @@ class Repo:
         source: str,
         summary: str,
         now: float,
-        counts: bytes | None = None,
         edge_id: int | None = None,
     ) -> int:
         """Store one change; ``edge_id``: the edge the change added (removed with it).
@@ -788,10 +787,9 @@ class Repo:
             raise ValueError(f"unknown learned change kind {kind!r}")
         with self.transaction():
             return self._insert(
-                "INSERT INTO learned_changes "
-                "(tour_id, kind, created_at, source, summary, counts, edge_id) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                (tour_id, kind, now, source, summary, counts, edge_id),
+                "INSERT INTO learned_changes (tour_id, kind, created_at, source, summary, edge_id) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (tour_id, kind, now, source, summary, edge_id),
             )
 
     def learned_changes(self, tour_id: int) -> list[LearnedChangeRow]:
@@ -1006,15 +1004,6 @@ class Repo:
             "SELECT id FROM images WHERE pending_robot = ? ORDER BY seq DESC LIMIT 1", (robot,)
         )
         return int(rows[0][0]) if rows else None
-
-    def transition_counts(self, tour_id: int) -> list[bytes]:
-        """The stored counts of every 'transitions' change of the tour, oldest first."""
-        rows = self._q(
-            "SELECT counts FROM learned_changes WHERE tour_id = ? AND kind = 'transitions' "
-            "AND counts IS NOT NULL ORDER BY id",
-            (tour_id,),
-        )
-        return [bytes(r[0]) for r in rows]
 
     # --- teaching state -------------------------------------------------------------------
 

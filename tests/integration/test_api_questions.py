@@ -273,10 +273,20 @@ def test_a_new_path_found_while_navigating_is_added_on_yes_and_used_by_the_plann
     alone = float(edge_costs(rt.graph, rt.params.costs)[edge])
     assert float(rt.costs(cc)[a]) == pytest.approx(alone)
 
-    # a second answer is refused and changes nothing; undo restores the taught tour
+    # a second answer is refused and changes nothing; so are an unknown change and another
+    # household's look at the tour; undo restores the taught tour
+    password = "correct horse battery"
+    c.post("/households", json={"name": "bee", "password": password}, headers=home.api.admin)
+    login = c.post("/auth/login", json={"household": "bee", "password": password})
+    bee = {"Authorization": f"Bearer {login.json()['token']}"}
     before = home.api.dump()
     r = home.answer(q["id"], "no")
     assert r.status_code == 409 and "already answered 'yes'" in r.json()["detail"], r.text
+    r = c.delete(f"/tours/{home.tour}/learned/9999", headers=home.robot)
+    assert r.status_code == 404 and "no learned change 9999" in r.json()["detail"], r.text
+    assert c.get(f"/tours/{home.tour}/learned", headers=bee).status_code == 404
+    r = c.delete(f"/tours/{home.tour}/learned/{change['id']}", headers=bee)
+    assert r.status_code == 404 and "rover" not in r.text
     assert home.api.dump() == before
     r = c.delete(f"/tours/{home.tour}/learned/{change['id']}", headers=home.robot)
     assert r.status_code == 204

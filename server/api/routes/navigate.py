@@ -6,7 +6,7 @@ from fastapi import APIRouter
 from starlette.concurrency import run_in_threadpool
 
 from server import schemas
-from server.api.deps import HouseholdDep, RobotDep, ServicesDep
+from server.api.deps import RobotDep, ServicesDep
 
 router = APIRouter(prefix="/robots/{robot}", tags=["navigation"])
 
@@ -24,14 +24,3 @@ async def goto(
 def stop(robot: RobotDep, services: ServicesDep) -> schemas.TaskPublic:
     """Cancel the navigation underway (409 when there is none)."""
     return services.navigation.stop(robot)
-
-
-@router.post("/learn", response_model=list[schemas.LearnedChange])
-async def learn(
-    robot: RobotDep, services: ServicesDep, household: HouseholdDep
-) -> list[schemas.LearnedChange]:
-    """Keep what the robot's last task taught (it must have arrived, with the server's
-    ``learning.collect`` on): its images as an experience of the edges it drove and its motion
-    as learned transitions of the tour (docs/learning.md). Each is a change that
-    a delete of /tours/{tour}/learned/{id} undoes."""
-    return await run_in_threadpool(services.learning.learn, robot, household)

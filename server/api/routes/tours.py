@@ -43,9 +43,9 @@ ChangeId = Annotated[int, Path(ge=1, le=schemas.MAX_ID, description="Learned cha
 def list_learned(
     tour_id: PathId, services: ServicesDep, household: HouseholdDep
 ) -> list[schemas.LearnedChange]:
-    """What the tour learned from repeat runs (docs/learning.md): each change, when, from which
-    run; remove one by deleting /tours/{tour_id}/learned/{change_id}."""
-    return services.learning.changes(tour_id, household)
+    """What the tour learned from answered questions (docs/learning.md): each change, when,
+    from which question; remove one by deleting /tours/{tour_id}/learned/{change_id}."""
+    return services.questions.changes(tour_id, household)
 
 
 @router.delete("/{tour_id}/learned/{change_id}", status_code=status.HTTP_204_NO_CONTENT)
@@ -53,5 +53,5 @@ def remove_learned(
     tour_id: PathId, change_id: ChangeId, services: ServicesDep, household: HouseholdDep
 ) -> Response:
     """Undo one learned change: the tour behaves as if it had never been learned."""
-    services.learning.remove(tour_id, change_id, household)
+    services.questions.remove_change(tour_id, change_id, household)
     return Response(status_code=status.HTTP_204_NO_CONTENT)
