@@ -125,30 +125,21 @@ class ServiceIndex(_Model):
 
 
 class LearnedChange(_Model):
-    """One thing a tour learned from a repeat run (docs/learning.md); remove it with
-    DELETE /tours/{tour}/learned/{id} to get the earlier behaviour back."""
+    """One thing a tour learned from a person's answer to a question (docs/learning.md);
+    remove it with DELETE /tours/{tour}/learned/{id} to get the earlier behaviour back."""
 
     id: int
     tour: int
-    kind: Literal[
-        "transitions", "experience", "junction", "loop_closure", "look_alike", "new_path"
-    ] = Field(
-        description="'transitions': the run's motion counts refine the belief's advance per "
-        "edge; 'experience': the run's images, added as more appearances of the edges it "
-        "drove; 'junction': two paths that leave one place along the same images share one "
-        "edge to a new unnamed junction (POST /tours/{tour}/junctions); 'loop_closure': a "
-        "'same_place' question answered yes, the taught path ended at a known place; "
-        "'look_alike': one answered no, the two views are marked as look-alikes; "
-        "'new_path': a 'new_path' question answered yes, an edge found by exploration"
+    kind: Literal["loop_closure", "look_alike", "new_path"] = Field(
+        description="'loop_closure': a 'same_place' question answered yes, the taught path "
+        "ended at a known place; 'look_alike': one answered no, the two views are marked as "
+        "look-alikes; 'new_path': a 'new_path' question answered yes, an edge found by "
+        "exploration"
     )
     created_at: float
-    source: str = Field(
-        description="Where it came from: the run (robot, task, when it started) or the question."
-    )
+    source: str = Field(description="Where it came from: the question, its robot and when.")
     summary: str
-    images: int = Field(
-        description="Images of an experience, or of the edge a loop closure or new path added."
-    )
+    images: int = Field(description="Images of the edge a loop closure or a new path added.")
     edge: int | None = Field(
         default=None, description="The edge a loop closure or a new path added (removed with it)."
     )

@@ -443,6 +443,24 @@ def image_depth(db: Any) -> None:
     db.execute("ALTER TABLE images ADD COLUMN depth BLOB")
 
 
+@migration(10)
+def removed_learned_kinds(db: Any) -> None:
+    """Learned transitions, experiences and junctions were removed (issue 41 part 8,
+    docs/learning.md, "Removed"): each was measured on top of the tracker with no gain, and
+    the server no longer reads or makes them. Their learned changes (kinds 'transitions',
+    'experience' and 'junction') are deleted, with their rows in ``experiences`` and
+    ``junctions`` (the references cascade), and both tables are dropped. The changes that
+    answers to questions make ('loop_closure', 'look_alike', 'new_path') are kept as they were,
+    with their ids; nothing else changes. ``learned_changes.counts`` (only 'transitions' used
+    it) stays, NULL in every row: dropping a column needs SQLite 3.35, which older systems'
+    Python does not have."""
+    db.execute(
+        "DELETE FROM learned_changes WHERE kind IN ('transitions', 'experience', 'junction')"
+    )
+    db.execute("DROP TABLE junctions")
+    db.execute("DROP TABLE experiences")
+
+
 def current_version(db: Any) -> int:
     if "schema_migrations" not in db.table_names():
         return 0

@@ -142,9 +142,8 @@ class NavigationRow:
 
 @dataclass(frozen=True)
 class LearnedChangeRow:
-    """One learned change of a tour (migrations 5, 6 and 7): ``kind`` one of
-    :data:`LEARNED_KINDS` (a 'junction' keeps its refinement in table ``junctions``);
-    ``images``: the experience's images, or the images of the edge a loop closure or a new path
+    """One learned change of a tour (migrations 5, 6 and 10): ``kind`` one of
+    :data:`LEARNED_KINDS`; ``images``: the images of the edge a loop closure or a new path
     added (0 otherwise); ``edge_id``: that edge."""
 
     id: int
@@ -157,10 +156,10 @@ class LearnedChangeRow:
     edge_id: int | None = None
 
 
-LEARNED_KINDS = ("transitions", "experience", "junction", "loop_closure", "look_alike", "new_path")
-"""What a learned change can be: learned transitions and experiences (repeat runs), a junction
-(shared path prefixes, POST /tours/{id}/junctions), a loop closure or a look-alike pair (a
-'same_place' question answered yes or no), a new path (a 'new_path' question answered yes)."""
+LEARNED_KINDS = ("loop_closure", "look_alike", "new_path")
+"""What a learned change can be: a loop closure or a look-alike pair (a 'same_place' question
+answered yes or no), a new path (a 'new_path' question answered yes). Learned transitions,
+experiences and junctions were removed (migration 10)."""
 
 QUESTION_STATES = ("open", "yes", "no", "expired", "withdrawn")
 """A question is open until answered (yes/no), past its expiry (expired), or made moot
@@ -769,7 +768,7 @@ class Repo:
         with self.transaction():
             self._many("UPDATE images SET features = ? WHERE id = ?", [(b, i) for i, b in items])
 
-    # --- learned changes (migration 5) ---------------------------------------------------
+    # --- learned changes (migrations 5, 6 and 10) -----------------------------------------
 
     def add_learned_change(
         self,
@@ -796,7 +795,6 @@ class Repo:
         """The tour's learned changes, oldest first, each with its number of images."""
         rows = self._q(
             "SELECT c.id, c.tour_id, c.kind, c.created_at, c.source, c.summary, "
-            "(SELECT COUNT(*) FROM experiences e WHERE e.change_id = c.id) + "
             "(SELECT COUNT(*) FROM images i WHERE c.edge_id IS NOT NULL "
             "AND i.edge_id = c.edge_id), "
             "c.edge_id FROM learned_changes c WHERE c.tour_id = ? ORDER BY c.id",
@@ -805,8 +803,8 @@ class Repo:
         return [LearnedChangeRow(*r) for r in rows]
 
     def remove_learned_change(self, tour_id: int, change_id: int) -> None:
-        """Delete the change and what it added: its experiences, its look-alike pairs, the edge
-        it added with that edge's images; NotFound when the tour has no such change."""
+        """Delete the change and what it added: its look-alike pairs, the edge it added with
+        that edge's images; NotFound when the tour has no such change."""
         with self.transaction():
             rows = self._q(
                 "SELECT edge_id FROM learned_changes WHERE id = ? AND tour_id = ?",

@@ -504,7 +504,7 @@ def test_a_schema_5_database_upgrades_to_9_losing_nothing_and_junctions_go_with_
 ) -> None:
     """Schema 5 -> 9 (7: junctions; the CHECK on the change's kind goes): every learned change
     and experience kept, with their ids; a junction row goes with its change, as the
-    experiences do. (Schema 10 then removes both kinds: the next tests.)"""
+    experiences do. (Schema 10 removes both kinds, tested below.)"""
     db = _old(store, 5)
     x = db.execute
     x("INSERT INTO households (id, name, password_hash, created_at) VALUES (2, 'flat', 'ah', 1.0)")
@@ -639,5 +639,109 @@ def test_a_schema_7_database_upgrades_and_navigation_rows_keep_the_trackers_memo
         repo.save_navigation(dataclasses.replace(again, belief=None, belief_memory=None))
         cleared = repo.navigation("rover")
         assert cleared is not None and cleared.belief is None and cleared.belief_memory is None
+    finally:
+        repo.close()
+
+
+def test_a_schema_9_database_keeps_the_question_kinds_and_loses_the_removed_ones(
+    store: Path | str,
+) -> None:
+    """Schema 9 -> 10 (learned transitions, experiences and junctions removed): a tour with one
+    learned change of each of the six kinds keeps its loop closure, look-alike pair and new
+    path as they were (ids, edges, images, pairs, the questions that made them) and loses the
+    other three with their rows; the tables ``experiences`` and ``junctions`` are gone and
+    every other row of every other table is as it was."""
+    db = _old(store, 9)
+    x = db.execute
+    x(
+        "INSERT INTO robots (name, household_id, token_hash, token_issued_at, created_at) "
+        "VALUES ('rover', 1, 'h', 1.0, 1.0)"
+    )
+    x("INSERT INTO tours (id, household_id, name, created_at) VALUES (7, 1, 'home', 2.0)")
+    x(
+        "INSERT INTO locations (id, tour_id, name, created_at) "
+        "VALUES (1, 7, 'hall', 3.0), (2, 7, 'kitchen', 3.0)"
+    )
+    x(
+        "INSERT INTO edges (id, tour_id, source_id, target_id, created_at) "
+        "VALUES (1, 7, 1, 2, 4.0), (2, 7, 2, 1, 5.0), (3, 7, 1, 2, 6.0)"
+    )
+    for image, owner, value in ((1, "location_id", 1), (2, "edge_id", 1), (3, "edge_id", 1)):
+        x(
+            f"INSERT INTO images (id, tour_id, {owner}, seq, timestamp, v, w, width, height, "
+            "jpeg, features, depth) VALUES (?, 7, ?, ?, 0.0, 0.2, 0.0, 64, 48, ?, ?, ?)",
+            (image, value, image, make_jpeg(image), b"\x02", b"\x00\x00\x80\x3f"),
+        )
+    for image, edge in ((4, 2), (5, 3), (6, 3)):  # the edges a loop closure, a new path added
+        x(
+            "INSERT INTO images (id, tour_id, edge_id, seq, timestamp, v, w, width, height, "
+            "jpeg) VALUES (?, 7, ?, ?, 0.0, 0.2, 0.0, 64, 48, ?)",
+            (image, edge, image, make_jpeg(image)),
+        )
+    x(
+        "INSERT INTO learned_changes (id, tour_id, kind, created_at, source, summary, counts, "
+        "edge_id) VALUES "
+        "(1, 7, 'transitions', 7.0, 'run', 'c', ?, NULL), "
+        "(2, 7, 'experience', 7.0, 'run', 'e', NULL, NULL), "
+        "(3, 7, 'junction', 8.0, 'search', 'j', NULL, NULL), "
+        "(4, 7, 'loop_closure', 9.0, 'question 1', 'l', NULL, 2), "
+        "(5, 7, 'look_alike', 9.5, 'question 2', 'a', NULL, NULL), "
+        "(6, 7, 'new_path', 10.0, 'question 3', 'n', NULL, 3)",
+        (b"\x00" * 24,),
+    )
+    x(
+        "INSERT INTO experiences (id, change_id, image_id, features, created_at) "
+        "VALUES (1, 2, 2, ?, 7.0)",
+        (b"\x01",),
+    )
+    x(
+        "INSERT INTO junctions (id, change_id, keep_image_id, other_image_id, keep_shared, "
+        "other_shared, mapping) VALUES (1, 3, 2, 5, 1, 1, ?)",
+        (b"\x00" * 4,),
+    )
+    x(
+        "INSERT INTO look_alikes (id, change_id, location_id, image_id, match_image_id) "
+        "VALUES (1, 5, 1, NULL, 1)"
+    )
+    x(
+        "INSERT INTO questions (id, robot, tour_id, kind, text, location_id, "
+        "source_location_id, image_id, match_image_id, confidence, created_at, expires_at, "
+        "state, answered_at, change_id) VALUES "
+        "(1, 'rover', 7, 'same_place', 'Are we at hall?', 1, 2, NULL, 1, 0.9, 9.0, 99.0, "
+        "'yes', 9.0, 4), "
+        "(2, 'rover', 7, 'same_place', 'Are we at hall?', 1, 2, NULL, 1, 0.9, 9.5, 99.0, "
+        "'no', 9.5, 5), "
+        "(3, 'rover', 7, 'new_path', 'Keep it?', 2, 1, NULL, NULL, 0.8, 10.0, 99.0, "
+        "'yes', 10.0, 6)"
+    )
+    x(
+        "INSERT INTO navigation (robot, tour_id, task_id, goal_location_id, state, started_at, "
+        "belief, belief_images, belief_memory) "
+        "VALUES ('rover', 7, 1, 2, 'arrived', 1.0, ?, 6, '{}')",
+        (b"\x00\x01",),
+    )
+    removed = ("learned_changes", "experiences", "junctions", "schema_migrations")
+    others = _rows(db, tuple(t for t in db.table_names() if t not in removed))
+    changes = _rows(db, ("learned_changes",))
+    db.close()
+
+    repo = Repo(store)
+    try:
+        assert repo.schema_version == MIGRATIONS[-1][0] == 10
+        assert not {"experiences", "junctions"} & set(repo.db.table_names())
+        assert _rows(repo.db, others) == others  # nothing else changed
+        columns, rows = changes["learned_changes"]  # type: ignore[misc]
+        kept = {"learned_changes": (columns, [r for r in rows if r[0] in (4, 5, 6)])}
+        assert _rows(repo.db, kept) == kept
+        assert [(r.id, r.kind, r.images, r.edge_id) for r in repo.learned_changes(7)] == [
+            (4, "loop_closure", 1, 2),
+            (5, "look_alike", 0, None),
+            (6, "new_path", 2, 3),
+        ]
+        assert repo.look_alike_images(1) == {1}
+        _references_hold(repo)
+        repo.remove_learned_change(7, 6)  # undo still takes the edge it added with it
+        assert [e.id for e in repo.edges(7)] == [1, 2]
+        assert repo.question(3) is not None and repo.question(3).change_id is None  # type: ignore[union-attr]
     finally:
         repo.close()
