@@ -21,7 +21,7 @@ from server.navigation.command import Command, Proposal
 from server.navigation.pathtrack import PathEstimate, PathTracker
 from server.navigation.runtime import TourRuntime, preferred
 from server.policy.voting import NAVIGATE as NAVIGATE_CODE
-from server.policy.voting import Decision, decide, plan_for
+from server.policy.voting import ROTATE0, Decision, decide, plan_for
 from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
     HomingResult,
@@ -287,37 +287,93 @@ def committed(
     similarity: FloatArray,
 ) -> Decision:
     """The decision, or, while the path tracker is locked on an edge the belief still holds
-    (``TopometricParams.commit_mass`` on its images, its start and its end place), the vote of
-    the tracked image when that is to go on along it: the tracker knows where along the edge
-    the robot is better than the split belief does (look-alike edges leaving a place flip the
-    vote from frame to frame). Explore, a decision for the tracked edge, and any decision at
-    the end of the tracked edge (the next edge is the policy's to choose) are left alone, and
-    so is a search for the tracked edge at its start place while the place's spin views
-    (``similarity``: ``(n_images,)``, the engine's for this frame) say the robot faces away
-    from where it sets off (:meth:`TourRuntime.faces_departure`)."""
+    (``TopometricParams.commit_mass`` on its images, its start and its end place; within
+    ``chain_m`` of its start, also on the edges that end at that place), the vote of the
+    tracked image when that is to go on along it: the tracker knows where along the edge the
+    robot is better than the split belief does (look-alike edges leaving a place flip the
+    vote from frame to frame). At the end of the tracked edge, into a place that is not the
+    goal, the vote of that place: the route goes on along the edge it votes for, through the
+    place without stopping (:func:`through_place`). Explore and a decision for the tracked
+    edge are left alone, and so is a search for the tracked edge at its start place while the
+    place's spin views (``similarity``: ``(n_images,)``, the engine's for this frame) say the
+    robot faces away from where it sets off (:meth:`TourRuntime.faces_departure`), unless the
+    tracker came onto the edge through that place from the one before."""
     if estimate is None or not estimate.locked or decision.action.kind == ActionKind.EXPLORE:
         return decision
-    if estimate.remaining_m <= runtime.params.topometric.chain_m:
-        return decision  # at the end of the edge: the policy picks the next one
+    tp = runtime.params.topometric
+    if estimate.remaining_m <= tp.chain_m:
+        return through_place(runtime, belief, decision, goal, estimate, hold_goal)
     edge = estimate.edge
     if decision.action.kind == ActionKind.NAVIGATE and decision.active_edge == edge:
         return decision
     searching = decision.action.kind == ActionKind.ROTATE_AND_FIND_EDGE
-    if searching and decision.action.edge == edge and not runtime.faces_departure(similarity, edge):
+    if (
+        searching
+        and decision.action.edge == edge
+        and not estimate.chained
+        and not runtime.faces_departure(similarity, edge)
+    ):
         return decision
+    if held_mass(runtime, belief, estimate) < tp.commit_mass:
+        return decision
+    plan = plan_for(
+        runtime.graph, goal, runtime.costs(goal), runtime.params.policy, hold_goal=hold_goal
+    )
     g = runtime.graph
-    e = g.edges[edge]
     lo = g.n_locations + int(g.edge_offsets[edge])
-    hi = g.n_locations + int(g.edge_offsets[edge + 1])
-    mass = float(belief[lo:hi].sum() + belief[e.source] + belief[e.target])
-    if mass < runtime.params.topometric.commit_mass:
-        return decision
-    plan = plan_for(g, goal, runtime.costs(goal), runtime.params.policy, hold_goal=hold_goal)
     k = estimate.index
     if plan.vote[lo + k] != NAVIGATE_CODE:
         return decision
-    target = min(k + 1, e.n_images - 1)
+    target = min(k + 1, g.edges[edge].n_images - 1)
     return replace(decision, action=Action.navigate(edge), target_image=target, active_edge=edge)
+
+
+def through_place(
+    runtime: TourRuntime,
+    belief: FloatArray,
+    decision: Decision,
+    goal: int,
+    estimate: PathEstimate,
+    hold_goal: bool,
+) -> Decision:
+    """At the end of the tracked edge (a locked ``estimate`` within ``chain_m`` of it): when
+    the edge ends at a place that is not the goal and the belief holds the edge
+    (``commit_mass``), Navigate the edge that place votes for, so that the path tracker
+    carries its estimate through the place into it (:meth:`PathTracker.step`) rather than
+    waiting for the belief to reach the place, stopping and searching for the edge's
+    departure; the decision as it is otherwise (the next edge is then the policy's to
+    choose)."""
+    g = runtime.graph
+    place = g.edges[estimate.edge].target
+    if (
+        place == goal
+        or held_mass(runtime, belief, estimate) < runtime.params.topometric.commit_mass
+    ):
+        return decision
+    plan = plan_for(g, goal, runtime.costs(goal), runtime.params.policy, hold_goal=hold_goal)
+    code = int(plan.vote[place]) - ROTATE0
+    if code < 0 or g.edges[code].source != place or g.edges[code].n_images == 0:
+        return decision
+    target = min(1, g.edges[code].n_images - 1)
+    return replace(decision, action=Action.navigate(code), target_image=target, active_edge=code)
+
+
+def held_mass(runtime: TourRuntime, belief: FloatArray, estimate: PathEstimate) -> float:
+    """The belief's mass on the tracked edge: its images, its start and its end place, and,
+    within ``chain_m`` of its start, the images of the edges that end at its start (a robot
+    that has just come through the place is still at their end as much as at its start)."""
+    g = runtime.graph
+    L = g.n_locations
+    e = g.edges[estimate.edge]
+    offsets = g.edge_offsets
+
+    def images(j: int) -> float:
+        return float(belief[L + int(offsets[j]) : L + int(offsets[j + 1])].sum())
+
+    mass = images(estimate.edge) + float(belief[e.source] + belief[e.target])
+    if estimate.along_m <= runtime.params.topometric.chain_m:
+        mass += sum(images(j) for j, f in enumerate(g.edges) if f.target == e.source)
+    return mass
 
 
 class LazyFits(Mapping[int, T | None], Generic[T]):

@@ -192,6 +192,8 @@ class PathEstimate:
             along the edge.
         length_m: the edge's length.
         since_fix_s: robot seconds since a heading was last measured.
+        chained: the estimate came onto this edge from the end of the one before it, through
+            their place (:meth:`PathTracker.step`), not afresh where the belief put it.
     """
 
     edge: int
@@ -209,6 +211,7 @@ class PathEstimate:
     index: int
     length_m: float
     since_fix_s: float
+    chained: bool = False
 
     @property
     def remaining_m(self) -> float:
@@ -260,6 +263,7 @@ class PathTracker:
         self.fixed_frames = 0  # frames with a heading measured since it started on this edge
         self.asked_other = 0  # frames the policy has asked for another edge while locked
         self.trace: list[TracePoint] = []  # since the last locked frame (that one first)
+        self.chained = False  # the estimate came onto this edge through a place
         self.estimate: PathEstimate | None = None
 
     def image(self, edge: int, k: int) -> int:
@@ -369,6 +373,7 @@ class PathTracker:
         self.fixed_frames = 0
         self.asked_other = 0
         self.trace = []
+        self.chained = False
 
     def _chain(self, current: int, nxt: int) -> None:
         """Carry the estimate from the end of ``current`` into ``nxt``'s frame."""
@@ -389,6 +394,7 @@ class PathTracker:
         self.edge, self.mean, self.cov = nxt, mean, 0.5 * (cov + cov.T)
         self.along = 0.0
         self.asked_other = 0
+        self.chained = True
 
     # -- the camera --------------------------------------------------------------------------
 
@@ -541,6 +547,7 @@ class PathTracker:
             index=path.image_at(along),
             length_m=path.length,
             since_fix_s=since,
+            chained=self.chained,
         )
 
     def _remember(self, est: PathEstimate) -> None:

@@ -135,3 +135,7 @@ def test_a_tracker_carries_its_estimate_across_a_place_into_the_next_edge() -> N
     # edge runs at -90 degrees in the next one's frame: 0.1 m ahead of the next edge's start
     # and 0.05 m to its left, facing -90 degrees
     np.testing.assert_allclose(est.pose, [0.1, 0.05, -math.pi / 2], atol=1e-6)
+    assert est.chained  # came through the place: the route goes on (observation.committed)
+    # started afresh on an edge (where the belief puts it), it did not
+    tracker._start(0, Decision(Action.navigate(0), 1, {}, 0), 3)
+    assert not tracker._estimate(0.2, 0).chained

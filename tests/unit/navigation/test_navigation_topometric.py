@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from navigation_testkit import GRAPH, A, B, observation, runtime
+from navigation_testkit import GRAPH, A, B, C, observation, runtime
 from vision_testkit import scene
 
 from server.belief.model import Action, ActionKind
@@ -180,3 +180,34 @@ def test_the_vote_is_taken_at_the_tracked_image_while_the_belief_holds_the_edge(
         committed(rt, belief, explore, B, est, hold_goal=True, similarity=none).action.kind
         == ActionKind.EXPLORE
     )
+
+
+def test_at_the_end_of_an_edge_the_route_goes_on_through_the_place() -> None:
+    rt = runtime()
+    g = rt.graph
+    L = g.n_locations
+    lo0 = L + int(g.edge_offsets[0])
+    # the tracker locked at the end of A -> B, the belief still on that edge's last images
+    # (the robot has not reached B in its eyes): going to C, the route goes on along B -> C
+    belief = np.zeros(g.n_fine)
+    belief[lo0 + 9], belief[lo0 + 8], belief[B] = 0.6, 0.2, 0.2
+    asked = observation(rt, action=Action.navigate(0), active_edge=0, goal=C).decision
+    end = estimate(rt, edge=0, along=rt.paths[0].length - 0.1)
+    none = np.zeros(g.n_images)
+    on = committed(rt, belief, asked, C, end, hold_goal=True, similarity=none)
+    assert on.action == Action.navigate(2) and on.active_edge == 2 and on.target_image == 1
+    # into the goal, not locked, or the belief elsewhere: the decision stands
+    assert committed(rt, belief, asked, B, end, hold_goal=True, similarity=none) == asked
+    loose = replace(end, locked=False)
+    assert committed(rt, belief, asked, C, loose, hold_goal=True, similarity=none) == asked
+    elsewhere = np.zeros(g.n_fine)
+    elsewhere[L + int(g.edge_offsets[3]) + 5] = 1.0
+    assert committed(rt, elsewhere, asked, C, end, hold_goal=True, similarity=none) == asked
+    # once through B, at the start of B -> C: the belief at the end of A -> B still holds it
+    # (the robot is as much at the end of the edge it came by), and the vote is B -> C's
+    start = estimate(rt, edge=2, along=0.2)
+    kept = committed(rt, belief, asked, C, start, hold_goal=True, similarity=none)
+    assert kept.action == Action.navigate(2) and kept.active_edge == 2
+    # further along B -> C the edge it came by no longer counts
+    later = estimate(rt, edge=2, along=2.0)
+    assert committed(rt, belief, asked, C, later, hold_goal=True, similarity=none) == asked
