@@ -363,16 +363,12 @@ def held_mass(runtime: TourRuntime, belief: FloatArray, estimate: PathEstimate) 
     within ``chain_m`` of its start, the images of the edges that end at its start (a robot
     that has just come through the place is still at their end as much as at its start)."""
     g = runtime.graph
+    upper = runtime.model.upper_mass(belief)  # (n_states,): the places, then the edges
     L = g.n_locations
     e = g.edges[estimate.edge]
-    offsets = g.edge_offsets
-
-    def images(j: int) -> float:
-        return float(belief[L + int(offsets[j]) : L + int(offsets[j + 1])].sum())
-
-    mass = images(estimate.edge) + float(belief[e.source] + belief[e.target])
+    mass = float(upper[L + estimate.edge] + upper[e.source] + upper[e.target])
     if estimate.along_m <= runtime.params.topometric.chain_m:
-        mass += sum(images(j) for j, f in enumerate(g.edges) if f.target == e.source)
+        mass += float(sum(upper[L + j] for j, f in enumerate(g.edges) if f.target == e.source))
     return mass
 
 

@@ -50,6 +50,7 @@ log = logging.getLogger(__name__)
 
 
 def change_public(row: LearnedChangeRow) -> schemas.LearnedChange:
+    """A stored learned change as the API answers it."""
     return schemas.LearnedChange(
         id=row.id,
         tour=row.tour_id,
