@@ -563,13 +563,16 @@ class Docking:
 
     def _tracked_there(self, obs: Observation, edge: int) -> bool:
         """Whether the path tracker, locked on ``edge``, puts the robot at its end (within
-        ``TopometricParams.arrive_m`` of it, and facing the way taught into the
-        goal within ``arrive_rad``): the view's word, measured, with no scale to read."""
+        ``TopometricParams.arrive_m`` of it): the view's word, measured, with no scale to
+        read. Whichever way it faces: a path whose guide turned on the spot at its end
+        (180 degrees, to where the place's spin began) had the robot turn so far that the
+        tracker, matching no view on the way round, let go, and the belief, seeing the next
+        edge's views, sent the robot on along it."""
         est, tp = obs.path, self.p.topometric
         if est is None or not est.locked or est.edge != edge:
             return False
         end = goal_end(self.rt, est)
-        return float(np.hypot(end[0], end[1])) <= tp.arrive_m and abs(end[2]) <= tp.arrive_rad
+        return float(np.hypot(end[0], end[1])) <= tp.arrive_m
 
     def _dock_move(self, edge: int, target: int, fit: ScaleResult) -> tuple[Proposal | None, bool]:
         """Creep on, back up, or settle (then the second axis) by the scale of ``fit``."""

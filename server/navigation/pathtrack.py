@@ -102,10 +102,9 @@ class TopometricParams:
       vote is taken at the tracked position (the vote of that image, :func:`committed`):
       two edges that leave a place alike split the belief and flipped the vote between them
       from frame to frame, turning a robot that knew where it was back to searching.
-    * ``arrive_m`` (0.12 m), ``arrive_rad`` (0.15 rad): a tracker locked on the edge into the
-      goal that puts the robot within this of the edge's end and facing the way taught
-      docks it there: arrival needs no scale docking then (beside the end, the path
-      follower drives onto it).
+    * ``arrive_m`` (0.12 m): a tracker locked on the edge into the goal that puts the robot
+      within this of the edge's end docks it there, whichever way it faces: arrival needs
+      no scale docking then (beside the end, the path follower drives onto it).
     * ``arrive_stretch_m`` (0.5 m): while it does, the belief's mass on that edge's images
       within this of its end counts as at the goal (the belief favoured an image just before
       the edge's exit zone at a robot standing on the taught spot, and never arrived).
@@ -157,7 +156,6 @@ class TopometricParams:
     commit_mass: float = 0.25
     path_evidence: float = 4.0
     arrive_m: float = 0.12
-    arrive_rad: float = 0.15
     arrive_stretch_m: float = 0.5
     link_sigma: float = 0.15
     restart_m: float = 2.0

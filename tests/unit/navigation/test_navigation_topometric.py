@@ -211,3 +211,22 @@ def test_at_the_end_of_an_edge_the_route_goes_on_through_the_place() -> None:
     # further along B -> C the edge it came by no longer counts
     later = estimate(rt, edge=2, along=2.0)
     assert committed(rt, belief, asked, C, later, hold_goal=True, similarity=none) == asked
+
+
+def test_at_the_tracked_end_of_the_path_into_the_goal_it_has_arrived_facing_any_way() -> None:
+    """A guide that turned on the spot at the end of the path taught an end heading 180
+    degrees from the way it drove in: the robot turning to face it lost the tracker's lock on
+    the way round and was sent on along the next edge. Arrival is where the robot stands."""
+    from server.navigation.docking import Docking
+
+    rt = runtime()
+    end = rt.paths[0].length
+    docking = Docking(rt, B)
+    docking.approach.done, docking.approach.edge = True, 0
+    obs = observation(rt, action=Action.navigate(0), active_edge=0, goal=B, at_goal=True)
+    for heading in (0.0, 1.0, -3.0):
+        there = replace(obs, path=estimate(rt, along=end - 0.05, heading=heading))
+        assert docking.confirm(there, False) == (None, True)
+    short = replace(obs, path=estimate(rt, along=end - 0.5))
+    proposal, arrived = docking.confirm(short, False)
+    assert not arrived and proposal is not None and proposal.command.v > 0
