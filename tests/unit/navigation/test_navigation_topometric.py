@@ -14,6 +14,7 @@ from server.belief.model import Action, ActionKind
 from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams
 from server.navigation.behaviours import FindEdge, Follow, Retrace
+from server.navigation.docking import Docking
 from server.navigation.observation import committed
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.runtime import TourRuntime
@@ -217,8 +218,6 @@ def test_at_the_tracked_end_of_the_path_into_the_goal_it_has_arrived_facing_any_
     """A guide that turned on the spot at the end of the path taught an end heading 180
     degrees from the way it drove in: the robot turning to face it lost the tracker's lock on
     the way round and was sent on along the next edge. Arrival is where the robot stands."""
-    from server.navigation.docking import Docking
-
     rt = runtime()
     end = rt.paths[0].length
     docking = Docking(rt, B)
