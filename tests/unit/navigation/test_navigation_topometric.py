@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from navigation_testkit import GRAPH, A, B, C, observation, runtime
 from vision_testkit import scene
 
@@ -15,7 +16,7 @@ from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams
 from server.navigation.behaviours import FindEdge, Follow, Retrace
 from server.navigation.docking import Docking
-from server.navigation.observation import committed
+from server.navigation.observation import committed, held_mass
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.runtime import TourRuntime
 from server.vision.features import extract
@@ -229,3 +230,26 @@ def test_at_the_tracked_end_of_the_path_into_the_goal_it_has_arrived_facing_any_
     short = replace(obs, path=estimate(rt, along=end - 0.5))
     proposal, arrived = docking.confirm(short, False)
     assert not arrived and proposal is not None and proposal.command.v > 0
+
+
+def test_held_mass_equals_the_sum_over_the_edges_states_naively() -> None:
+    rt = runtime()
+    g = rt.graph
+    rng = np.random.default_rng(3)
+    chain_m = rt.params.topometric.chain_m
+    for edge in range(g.n_edges):
+        for along in (0.0, chain_m / 2, chain_m + 1.0):
+            belief = rng.dirichlet(np.ones(g.n_fine))
+            est = replace(estimate(rt, edge=edge, along=min(along, 4.5)), along_m=along)
+            e = g.edges[edge]
+            naive = sum(
+                float(p)
+                for s, p in zip(g.fine_state, belief, strict=True)
+                if s in (e.source, e.target, g.n_locations + edge)
+                or (
+                    along <= chain_m
+                    and s >= g.n_locations
+                    and g.edges[s - g.n_locations].target == e.source
+                )
+            )
+            assert held_mass(rt, belief, est) == pytest.approx(naive, abs=1e-12)
