@@ -134,11 +134,6 @@ class TourGraph:
         return np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
 
     @cached_property
-    def edge_source(self) -> IntArray:
-        """``(n_edges,)`` int: the location each edge leaves from."""
-        return np.array([e.source for e in self.edges], dtype=np.int64)
-
-    @cached_property
     def edge_target(self) -> IntArray:
         """``(n_edges,)`` int: the location each edge ends at."""
         return np.array([e.target for e in self.edges], dtype=np.int64)
