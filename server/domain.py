@@ -133,11 +133,6 @@ class TourGraph:
         lengths = np.array([e.n_images for e in self.edges], dtype=np.int64)
         return np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
 
-    @cached_property
-    def edge_target(self) -> IntArray:
-        """``(n_edges,)`` int: the location each edge ends at."""
-        return np.array([e.target for e in self.edges], dtype=np.int64)
-
     @property
     def n_fine(self) -> int:
         """Number of fine states: one per location plus one per edge image."""

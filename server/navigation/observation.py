@@ -368,7 +368,7 @@ def held_mass(runtime: TourRuntime, belief: FloatArray, estimate: PathEstimate) 
     e = g.edges[estimate.edge]
     mass = float(upper[L + estimate.edge] + upper[e.source] + upper[e.target])
     if estimate.along_m <= runtime.params.topometric.chain_m:
-        mass += float(upper[L:][g.edge_target == e.source].sum())
+        mass += float(upper[L:][list(runtime.model.in_edges[e.source])].sum())
     return mass
 
 
