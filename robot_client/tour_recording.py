@@ -12,6 +12,8 @@ SHA-256, the route, the place names).
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,7 +65,9 @@ class TourRecording:
         return sum(s.jpeg is not None for s in self.steps)
 
     def save(self, path: Path) -> None:
-        """Write the recording to ``path`` (``.npz``), atomically (a temporary file renamed)."""
+        """Write the recording to ``path`` (``.npz``), atomically (a temporary file of its
+        own renamed: two benchmarks walking the same tour into one cache at once each write
+        a whole file, and the last one renamed wins)."""
         names = sorted({s.place for s in self.steps})
         blobs = [s.jpeg or b"" for s in self.steps]
         offsets = np.cumsum([0, *(len(b) for b in blobs)], dtype=np.int64)
@@ -74,8 +78,9 @@ class TourRecording:
             "places": names,
         }
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".part")
-        with tmp.open("wb") as fh:
+        fd, name = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+        tmp = Path(name)
+        with os.fdopen(fd, "wb") as fh:
             np.savez(
                 fh,
                 header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -59,6 +60,19 @@ def test_a_recording_round_trips_through_a_file(recording: TourRecording, tmp_pa
     )
     # every image carries the simulator's true pose; a mark has none
     assert all((s.pose is None) == (s.kind == "mark") for s in again.steps)
+
+
+def test_two_writers_of_one_recording_at_once_both_finish(
+    recording: TourRecording, tmp_path: Path
+) -> None:
+    """Two benchmarks walking the same tour into one cache at once: each writes a file of its
+    own and renames it; neither finds its temporary file taken away (they shared one name)."""
+    path = tmp_path / "cache" / "tour.npz"
+    with ThreadPoolExecutor(2) as pool:
+        for f in [pool.submit(recording.save, path) for _ in range(4)]:
+            f.result()
+    assert TourRecording.load(path) == recording
+    assert [p.name for p in path.parent.iterdir()] == ["tour.npz"]
 
 
 def test_a_recording_of_format_1_reads_without_poses(
