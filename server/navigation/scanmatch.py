@@ -250,3 +250,96 @@ def match_profiles_starts(
         if f is not None
     ]
     return sorted(fits, key=lambda f: f.score)
+
+
+def _seen_from(
+    points: FloatArray,
+    shifts: FloatArray,
+    ranges: FloatArray,
+    fov_deg: float,
+    agree_m: float,
+    max_range_m: float,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """For each shift ``(H, 2)`` of the robot that saw ``points`` ``(m, 2)``, relative to the
+    one that saw the profile ``ranges`` ``(n,)`` (same heading): how many of the points that
+    robot's profile explains (a ray there, or one beside it, ends within ``agree_m`` of the
+    point), how closely (the sum of ``1 - distance / agree_m`` over them), and how many it
+    contradicts (its rays there, and beside it, passed the point by more than ``agree_m``:
+    nothing stood there). ``(H,)`` each; points outside its view (behind, beyond its fan,
+    further than ``max_range_m - agree_m``) count for none."""
+    n = len(ranges)
+    half = math.radians(fov_deg) / 2
+    free = np.where(np.isfinite(ranges) & (ranges > 0.05), ranges, np.inf)
+    free = np.minimum(free, max_range_m)  # nothing seen: free as far as it could see
+    pad = np.concatenate([[np.inf], free, [np.inf]])
+    p = points[None, :, :] + shifts[:, None, :]  # (H, m, 2)
+    bearing = np.arctan2(p[..., 1], p[..., 0])
+    rho = np.hypot(p[..., 0], p[..., 1])
+    inside = (p[..., 0] > 0) & (np.abs(bearing) <= half) & (rho < max_range_m - agree_m)
+    k = np.clip(np.rint((half - bearing) / (2 * half) * (n - 1)), 0, n - 1).astype(np.int64) + 1
+    near = np.stack([pad[k - 1], pad[k], pad[k + 1]], axis=-1)  # (H, m, 3)
+    miss = np.abs(near - rho[..., None]).min(axis=-1)
+    explained = inside & (miss <= agree_m)
+    passed = inside & (rho < near.min(axis=-1) - agree_m)  # (the ends' pads never pass it)
+    closeness = np.where(explained, 1.0 - miss / agree_m, 0.0)
+    return (
+        explained.sum(axis=1).astype(np.float64),
+        closeness.sum(axis=1),
+        passed.sum(axis=1).astype(np.float64),
+    )
+
+
+def along_offset(
+    taught: npt.ArrayLike,
+    current: npt.ArrayLike,
+    *,
+    fov_deg: float,
+    params: ScanParams = ScanParams(),
+    along_m: float = 2.0,
+    lateral_m: float = 0.4,
+    step_m: float = 0.05,
+    agree_m: float = 0.1,
+) -> float | None:
+    """Metres the current robot stands ahead of the taught one along the taught heading
+    (negative: behind it), from two depth profiles facing the same way (docking has lined
+    the view up); ``None`` when they cannot tell.
+
+    Every shift up to ``along_m`` along and ``lateral_m`` sideways (``step_m`` apart) is
+    tried: each profile's points as the other robot would see them from there, explained
+    where one of its rays ends within ``agree_m`` of the point, contradicted where its rays
+    passed through the point (free space there, as it saw). A shift fits when it leaves at
+    least ``params.min_points`` points explained each way, two thirds of those in view
+    explained and at most a tenth contradicted; of those, the one explaining most closely
+    with fewest contradictions wins. ``None`` when none fits, or when a fitting shift
+    ``0.3 m`` or more along from it contradicts at most one point more: along a corridor's
+    walls, which look the same from anywhere along it (so do its floor's tiles, which is why
+    the views' scale can be fooled there), every shift fits.
+    """
+    rt = np.asarray(taught, dtype=np.float64)
+    rc = np.asarray(current, dtype=np.float64)
+    if len(rt) < 3 or len(rc) != len(rt):
+        return None
+    T, C = profile_points(rt, fov_deg, params), profile_points(rc, fov_deg, params)
+    if len(T) < params.min_points or len(C) < params.min_points:
+        return None
+    xs = np.arange(-along_m, along_m + step_m / 2, step_m)
+    ys = np.arange(-lateral_m, lateral_m + step_m / 2, step_m)
+    shifts = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+    mr = params.max_range_m
+    ec, cc, pc = _seen_from(C, shifts, rt, fov_deg, agree_m, mr)  # current points, taught rays
+    et, ct, pt = _seen_from(T, -shifts, rc, fov_deg, agree_m, mr)  # taught points, current rays
+    explained, passed = ec + et, pc + pt
+    checked = explained + passed
+    fits = (
+        (np.minimum(ec, et) >= params.min_points)
+        & (10 * passed <= checked)
+        & (3 * explained >= 2 * checked)
+    )
+    if not fits.any():
+        return None
+    score = np.where(fits, cc + ct - 3 * passed, -np.inf)
+    best = int(np.argmax(score))
+    far = np.abs(shifts[:, 0] - shifts[best, 0]) >= 0.3
+    if np.any(far & fits & (passed <= passed[best] + 1)):
+        return None
+    return float(shifts[best, 0])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -131,3 +132,37 @@ def outcome(
     """The last frame's outcome: ``winner`` proposed ``command`` and it was chosen as is."""
     proposal = Proposal(command, f"{winner} says so")
     return Outcome(command, winner, proposal.reason, {winner: proposal}, events)
+
+
+FOV = 90.0
+"""The depth profiles' field of view in these tests, degrees (the simulated robot's)."""
+RAYS = 31
+
+
+def room_profile(
+    x: float, y: float, th: float, *, walls: list[tuple[float, float, float, float]]
+) -> np.ndarray:
+    """Ranges from pose (x, y, th) to line segments ``walls`` (x0, y0, x1, y1): a ray caster."""
+    half = math.radians(FOV) / 2
+    out = np.full(RAYS, np.inf)
+    for i, a in enumerate(np.linspace(half, -half, RAYS)):
+        d = np.array([math.cos(th + a), math.sin(th + a)])
+        for x0, y0, x1, y1 in walls:
+            e = np.array([x1 - x0, y1 - y0])
+            m = np.array([[d[0], -e[0]], [d[1], -e[1]]])
+            if abs(np.linalg.det(m)) < 1e-12:
+                continue
+            t, u = np.linalg.solve(m, [x0 - x, y0 - y])
+            if t > 0 and 0 <= u <= 1:
+                out[i] = min(out[i], t)
+    return out
+
+
+WALLS = [  # a room 4 x 3 m with a cupboard
+    (0, 0, 4, 0),
+    (4, 0, 4, 3),
+    (4, 3, 0, 3),
+    (0, 3, 0, 0),
+    (3.0, 2.2, 3.6, 2.2),
+    (3.0, 2.2, 3.0, 3.0),
+]

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from test_navigation_scanmatch import room_profile
+from navigation_testkit import room_profile
 
 from server.belief.model import Action
 from server.domain import Edge
