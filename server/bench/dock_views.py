@@ -15,10 +15,7 @@ as ``NavigationParams.dock_taught_zooms``:
   (``NavigationParams.dock_wide_corners``, :func:`server.vision.homing.wide_corners`).
 
 Per offset: views, mean inliers, the share with at least ``dock_min_inliers`` (docking acts on
-them) and the share whose verdict (``scale_verdict`` with ``dock_scale_tol``) is right. The
-``depth`` column reads the same views' depth profiles instead
-(:func:`server.navigation.scanmatch.along_offset`, the verdict with ``dock_depth_m``): acted
-on where the profiles can tell; its "inliers" column is the mean error of the estimate, cm.
+them) and the share whose verdict (``scale_verdict`` with ``dock_scale_tol``) is right.
 Single views, no closed loop: ``bench navigate`` is the judge of docking.
 """
 
@@ -67,16 +64,6 @@ def summary(rows: list[dict[str, Any]], offsets: list[float], min_inliers: int) 
         mine = [r for r in rows if r["offset_m"] == d]
         truth = 1 if d < 0 else -1 if d > 0 else 0
         cell: dict[str, Any] = {"views": len(mine)}
-        ahead = [r["depth"]["ahead_m"] for r in mine if r["depth"]["ahead_m"] is not None]
-        cell["depth"] = {
-            "mean_inliers": 100 * float(np.mean(np.abs(np.subtract(ahead, d))))
-            if ahead
-            else float("nan"),
-            "acted_share": len(ahead) / len(mine) if mine else float("nan"),
-            "right_share": float(np.mean([r["depth"]["verdict"] == truth for r in mine]))
-            if mine
-            else float("nan"),
-        }
         for m in METHODS:
             inl = np.array([r[m]["inliers"] for r in mine], float)
             acted = inl >= min_inliers
@@ -94,7 +81,6 @@ def run(args: argparse.Namespace) -> int:
     from robot_client.sim.floorplan import load_plan
     from robot_client.sim.world import Pose, SimWorld
     from server.navigation import NavigationParams
-    from server.navigation.scanmatch import along_offset
     from server.vision.features import extract
     from server.vision.homing import (
         homing_scale_taught_zoomed,
@@ -115,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
                 for k in range(args.headings):
                     th = place.yaw + 2 * math.pi * k / args.headings
                     taught = world.render(Pose(place.x, place.y, th))
-                    taught_depth = world.depth_profile(Pose(place.x, place.y, th))
                     tf = extract(taught, fp)
                     levels = taught_zoom_levels(taught, tf, zooms, fp)
                     outs = tuple(lv for lv in levels if lv.factor <= 1.0)
@@ -137,22 +122,6 @@ def run(args: argparse.Namespace) -> int:
                         }
                         row: dict[str, Any] = {"plan": plan.name, "place": place.name}
                         row.update({"heading": k, "offset_m": d})
-                        ahead = along_offset(
-                            taught_depth,
-                            world.depth_profile(Pose(x, y, th)),
-                            fov_deg=p.topometric.depth_fov_deg,
-                            params=p.topometric.scan_fit,
-                        )
-                        row["depth"] = {
-                            "ahead_m": ahead,
-                            "verdict": None
-                            if ahead is None
-                            else 1
-                            if ahead < -p.dock_depth_m
-                            else -1
-                            if ahead > p.dock_depth_m
-                            else 0,
-                        }
                         for m, fit in fits.items():
                             row[m] = {
                                 "inliers": 0 if fit is None else fit.inliers,
@@ -167,19 +136,17 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{'offset':>7s} {'views':>5s}  "
         + "  ".join(f"{m + ': inliers / acted / right':34s}" for m in METHODS)
-        + "  depth: error cm / acted / right"
     )
     for key, cell in table.items():
         parts = [
             f"{cell[m]['mean_inliers']:6.1f} / {100 * cell[m]['acted_share']:3.0f} % / "
             f"{100 * cell[m]['right_share']:3.0f} %".ljust(34)
-            for m in (*METHODS, "depth")
+            for m in METHODS
         ]
         print(f"{key:>7s} {cell['views']:5d}  " + "  ".join(parts))
     print(
         "(methods named as NavigationParams.dock_taught_zooms; off = the frame's four zooms; "
-        "both_wide = both with dock_wide_corners; depth = the depth profiles, verdict with "
-        f"dock_depth_m {p.dock_depth_m} m)"
+        "both_wide = both with dock_wide_corners)"
     )
     write_json(
         args.json,
@@ -189,7 +156,6 @@ def run(args: argparse.Namespace) -> int:
             "offsets_m": list(args.offsets),
             "dock_min_inliers": p.dock_min_inliers,
             "dock_scale_tol": p.dock_scale_tol,
-            "dock_depth_m": p.dock_depth_m,
             "summary": table,
             "rows": rows,
         },

@@ -14,11 +14,6 @@ One behaviour with one state, because its parts hand over to each other:
   edge's last views agrees, then (``dock_second_axis``) turns a quarter turn and place-docks a
   second axis.
 
-Both read short / past / there from the view's scale; where the scale says "there" and the
-depth profiles say the robot stands more than ``dock_depth_m`` off where the view was taught,
-the depth's word (:meth:`Docking._verdict`: a floor that repeats every metre or two matched
-its taught view 2 m off the spot at a scale of 1.00).
-
 The arbiter asks :meth:`place` among the motion behaviours and :meth:`confirm` last.
 """
 
@@ -40,7 +35,7 @@ from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import pursue
 from server.navigation.runtime import TourRuntime
-from server.navigation.scanmatch import ScanFit, along_offset, match_profiles_starts
+from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.navigation.tracking import move
 from server.vision.homing import ScaleResult
 
@@ -159,19 +154,6 @@ class SpotFix:
             return None
         self.found = carried
         return carried
-
-
-def along_by_depth(rt: TourRuntime, obs: Observation, image: int) -> float | None:
-    """Metres the robot stands ahead of where ``image`` was taught, along its heading
-    (negative: behind), by the frame's depth profile against the one taught with it
-    (:func:`~server.navigation.scanmatch.along_offset`; the robot faces the way the image
-    was taken: docking lined the view up). ``None`` without depth (or with topometric repeat
-    or its depth matching off: ``TopometricParams.scan``) or when the profiles cannot tell."""
-    tp = rt.params.topometric
-    taught = rt.taught_depth.get(image)
-    if obs.depth is None or taught is None or not (tp.enabled and tp.scan):
-        return None
-    return along_offset(taught, obs.depth, fov_deg=tp.depth_fov_deg, params=tp.scan_fit)
 
 
 def toward_spot(spot: npt.NDArray[np.float64], rt: TourRuntime) -> tuple[float, float]:
@@ -334,22 +316,8 @@ class Docking:
     def _best(self, views: Views, candidates: list[int]) -> tuple[int, ScaleResult | None]:
         return best_fit(views.zoomed_scale, candidates)
 
-    def _verdict(
-        self, obs: Observation, target: int, log_scales: list[float], fit: ScaleResult
-    ) -> tuple[bool, bool]:
-        """Short of the view ``target``, past it, or neither (within tolerance), by the views'
-        scale (:func:`scale_verdict`); where the scale says "there" and the depth profiles
-        put the robot further than ``dock_depth_m`` from where the view was taught
-        (:func:`along_by_depth`), the depth's word: a floor that repeats looks the same off
-        the spot, while near it the scale reads finer than the depth (which a moved chair
-        can fool)."""
-        short, past = scale_verdict(log_scales, fit, self.p.dock_scale_tol)
-        if short or past:
-            return short, past
-        ahead = along_by_depth(self.rt, obs, target)
-        if ahead is None:
-            return False, False
-        return ahead < -self.p.dock_depth_m, ahead > self.p.dock_depth_m
+    def _verdict(self, log_scales: list[float], fit: ScaleResult) -> tuple[bool, bool]:
+        return scale_verdict(log_scales, fit, self.p.dock_scale_tol)
 
     def _spins(self, obs: Observation, most: int = 3) -> list[int]:
         """The goal's spin images the engine ranks highest for this frame."""
@@ -468,7 +436,7 @@ class Docking:
         if fit is None or fit.inliers < p.dock_min_inliers:
             pl.phase = "look"  # lost the view; the turning budget goes on
             return self._turn("lost the view; looking again")
-        short, past = self._verdict(obs, target, pl.log_scales, fit)
+        short, past = self._verdict(pl.log_scales, fit)
         settled = not (short or (past and p.dock_reverse))
         if settled and len(pl.log_scales) < 3 and pl.m < p.dock_max_m:
             # one fit may be off (parallax at close range): hold still until three agree
@@ -547,7 +515,7 @@ class Docking:
             a.log_scales.clear()
             turn = self._second_axis()
             return turn, turn is None
-        return self._dock_move(obs, a.edge, target, fit)
+        return self._dock_move(a.edge, target, fit)
 
     def _tracker_decides(self, obs: Observation, edge: int) -> bool:
         """Whether the path tracker has the word on the arrival by ``edge``: topometric
@@ -606,12 +574,10 @@ class Docking:
         end = goal_end(self.rt, est)
         return float(np.hypot(end[0], end[1])) <= tp.arrive_m
 
-    def _dock_move(
-        self, obs: Observation, edge: int, target: int, fit: ScaleResult
-    ) -> tuple[Proposal | None, bool]:
-        """Creep on, back up, or settle (then the second axis) by :meth:`_verdict`."""
+    def _dock_move(self, edge: int, target: int, fit: ScaleResult) -> tuple[Proposal | None, bool]:
+        """Creep on, back up, or settle (then the second axis) by the scale of ``fit``."""
         a, p, mp = self.approach, self.p, self.p.motion
-        short, past = self._verdict(obs, target, a.log_scales, fit)
+        short, past = self._verdict(a.log_scales, fit)
         if a.dock_m >= p.dock_max_m or not (short or (past and p.dock_reverse)):
             a.log_scales.clear()
             turn = self._second_axis()

@@ -90,21 +90,6 @@ class NavigationParams:
       When none of those images fits (the robot faces elsewhere), the goal's spin images are
       tried (the three the engine ranks highest), and only when they do not fit either does
       the belief's word stand.
-    * ``dock_depth_m`` (0.3 m): where the robot has a depth profile and the view's own taught
-      profile (topometric repeat with ``scan``), a view whose scale says "there" while the two
-      profiles put the robot further than this ahead of or behind where the view was taught
-      (:func:`server.navigation.docking.along_by_depth`) does not settle: both dockings
-      creep on or back up by the depth until it is within this. The scale is fooled where the
-      floor repeats: the simulated homes' floor and ceiling textures look the same every 1-2
-      m, and a view 2 m off the spot along a corridor matched its taught view with 34-79
-      inliers at a scale of 1.00. Single views in the three shipped homes (``teachrepeat bench
-      dock-views --plan ... --headings 8 --offsets -2 -1 -0.6 -0.3 0 0.3 0.6 1 2``, views
-      rendered straight ahead of and behind each place's spot): the profiles tell 80-93 % of
-      the views up to 1 m off, within 2 cm on average; at 2 m, 45-57 %, 0.7-0.9 m off on
-      average and 20 of 188 the wrong way. The scale acts on 34-43 % of the views 1 m off and
-      is right on 32-34 %; at 2 m on 12-15 %. Near the spot the scale reads as well and a
-      moved chair can fool the depth: the depth has no word where the scale says short or
-      past.
     * ``dock_second_axis`` (True): once docking along the edge has settled, the robot turns a
       quarter turn and docks on the goal's spin images there, as place docking does on its
       second axis, then arrives. Docking along the view cannot see a sideways offset: in the
@@ -241,7 +226,6 @@ class NavigationParams:
     dock_min_inliers: int = 10
     dock_max_m: float = 1.5
     dock_reverse: bool = True
-    dock_depth_m: float = 0.3
     place_dock: bool = True
     place_dock_ambiguity: float = 0.5
     place_dock_turns: float = 1.25
