@@ -80,24 +80,28 @@ class TourRecording:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, name = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
         tmp = Path(name)
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(
-                fh,
-                header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
-                kind=np.array([KINDS.index(s.kind) for s in self.steps], dtype=np.uint8),
-                place=np.array([names.index(s.place) for s in self.steps], dtype=np.int32),
-                tvw=np.array([(s.t, s.v, s.w) for s in self.steps], dtype=np.float64).reshape(
-                    -1, 3
-                ),
-                offsets=offsets,
-                jpeg=np.frombuffer(b"".join(blobs), dtype=np.uint8),
-                pose=np.array(
-                    [s.pose if s.pose is not None else (np.nan,) * 3 for s in self.steps],
-                    dtype=np.float64,
-                ).reshape(-1, 3),
-                depth=_depth_rows(self.steps),
-            )
-        tmp.replace(path)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(
+                    fh,
+                    header=np.frombuffer(json.dumps(header).encode(), dtype=np.uint8),
+                    kind=np.array([KINDS.index(s.kind) for s in self.steps], dtype=np.uint8),
+                    place=np.array([names.index(s.place) for s in self.steps], dtype=np.int32),
+                    tvw=np.array([(s.t, s.v, s.w) for s in self.steps], dtype=np.float64).reshape(
+                        -1, 3
+                    ),
+                    offsets=offsets,
+                    jpeg=np.frombuffer(b"".join(blobs), dtype=np.uint8),
+                    pose=np.array(
+                        [s.pose if s.pose is not None else (np.nan,) * 3 for s in self.steps],
+                        dtype=np.float64,
+                    ).reshape(-1, 3),
+                    depth=_depth_rows(self.steps),
+                )
+            tmp.replace(path)
+        except BaseException:
+            tmp.unlink(missing_ok=True)  # a failed save leaves nothing in the cache
+            raise
 
     @classmethod
     def load(cls, path: Path) -> TourRecording:

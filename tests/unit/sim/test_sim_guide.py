@@ -6,6 +6,7 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robot_client.guide import guided_tour_steps, record_tour, rehearse
@@ -75,12 +76,22 @@ def test_two_writers_of_one_recording_at_once_both_finish(
     assert [p.name for p in path.parent.iterdir()] == ["tour.npz"]
 
 
+def test_a_save_that_fails_leaves_nothing_behind(
+    recording: TourRecording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(np, "savez", full)
+    with pytest.raises(OSError, match="No space"):
+        recording.save(tmp_path / "tour.npz")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_recording_of_format_1_reads_without_poses(
     recording: TourRecording, tmp_path: Path
 ) -> None:
     import json
-
-    import numpy as np
 
     path = tmp_path / "tour.npz"
     recording.save(path)
