@@ -6,6 +6,7 @@ place it carries its estimate into the next edge."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from navigation_testkit import room_profile
@@ -139,3 +140,69 @@ def test_a_tracker_carries_its_estimate_across_a_place_into_the_next_edge() -> N
     # started afresh on an edge (where the belief puts it), it did not
     tracker._start(0, Decision(Action.navigate(0), 1, {}, 0), 3)
     assert not tracker._estimate(0.2, 0).chained
+
+
+LANES = [  # a room 5.5 m x 3 m split into three lanes by two long desks; a box ends lane 0
+    (0, 0, 5.5, 0),
+    (5.5, 0, 5.5, 3),
+    (5.5, 3, 0, 3),
+    (0, 3, 0, 0),
+    (0.5, 1, 4.5, 1),
+    (0.5, 2, 4.5, 2),
+    (5.0, 0.2, 5.5, 0.2),
+    (5.0, 0.2, 5.0, 0.8),
+    (5.0, 0.8, 5.5, 0.8),
+]
+
+
+def held_in_the_wrong_lane(params: TopometricParams) -> list[tuple[float, bool]]:
+    """A robot standing on a path taught down lane 0, its tracker locked (sd 0.02 m) one
+    lane over, 1 m to the left; (estimated lateral, locked) after each of 30 frames."""
+    start = np.array([1.0, 0.5, 0.0])
+    n = 40
+    path = EdgePath.of(
+        Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
+    )
+    depths = [room_profile(*compose(start, pose), walls=LANES) for pose in path.poses]
+    tracker = PathTracker(
+        (path,), (NO_FEATURES,) * n, np.array([0]), params, depth=lambda k: depths[k]
+    )
+    decision = Decision(Action.navigate(0), 1, {}, 0)
+    tracker._start(0, decision, 10)
+    tracker.mean = path.poses[10] + np.array([0.0, 1.0, 0.0])
+    tracker.cov = np.diag([0.05**2, 0.02**2, 0.01**2])
+    tracker.fixed_frames, tracker.last_fix = 10, 0.0
+    tracker.estimate = tracker._estimate(0.0, 1)
+    assert tracker.estimate.locked
+    truth = compose(start, path.poses[10])
+    rng = np.random.default_rng(0)
+    out = []
+    for step in range(1, 31):
+        depth = room_profile(*truth, walls=LANES) + rng.normal(0, 0.01, 31)
+        est = tracker.step(
+            NO_FEATURES,
+            t=0.1 * step,
+            v=0.0,
+            w=0.0,
+            dt=0.1,
+            decision=decision,
+            along_belief=None,
+            depth=depth,
+        )
+        assert est is not None
+        out.append((est.lateral_m, est.locked))
+    return out
+
+
+def test_a_tracker_locked_in_the_wrong_alignment_moves_to_the_one_that_fits_better() -> None:
+    # from the estimate, the depth profile aligns with the desks one lane over (each wall
+    # pairs with its neighbour; the box does not fit): the estimate stays there, locked ...
+    stuck = held_in_the_wrong_lane(replace(TopometricParams(), rival_frames=10**6))
+    assert all(abs(lateral - 1.0) < 0.05 and locked for lateral, locked in stuck)
+    # ... until fit after fit from many guesses (the right lane, the box too) says otherwise
+    params = TopometricParams()
+    trace = held_in_the_wrong_lane(params)
+    moved = next(k for k, (lateral, _) in enumerate(trace) if abs(lateral) < 0.05)
+    assert moved == params.rival_frames - 1  # on the eighth fit in a row, not before
+    assert not trace[moved][1]  # not locked until measured again ...
+    assert all(abs(lateral) < 0.05 and locked for lateral, locked in trace[moved + 6 :])
