@@ -37,12 +37,14 @@ NO_FEATURES = ImageFeatures(
 )
 
 
-def taught_edge(start: np.ndarray, n: int = 80) -> tuple[EdgePath, list[np.ndarray]]:
+def taught_edge(
+    start: np.ndarray, n: int = 80, walls: list[tuple[float, float, float, float]] = WALLS
+) -> tuple[EdgePath, list[np.ndarray]]:
     """A straight taught edge of ``n`` images 0.05 m apart from world pose ``start``, and the
-    depth profile taught with each image."""
+    depth profile taught with each image in the room ``walls``."""
     edge = Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
     path = EdgePath.of(edge)
-    depths = [room_profile(*compose(start, pose), walls=WALLS) for pose in path.poses]
+    depths = [room_profile(*compose(start, pose), walls=walls) for pose in path.poses]
     return path, depths
 
 
@@ -160,10 +162,7 @@ def held_in_the_wrong_lane(params: TopometricParams) -> list[tuple[float, bool]]
     lane over, 1 m to the left; (estimated lateral, locked) after each of 30 frames."""
     start = np.array([1.0, 0.5, 0.0])
     n = 40
-    path = EdgePath.of(
-        Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
-    )
-    depths = [room_profile(*compose(start, pose), walls=LANES) for pose in path.poses]
+    path, depths = taught_edge(start, n, walls=LANES)
     tracker = PathTracker(
         (path,), (NO_FEATURES,) * n, np.array([0]), params, depth=lambda k: depths[k]
     )
