@@ -198,6 +198,9 @@ def test_a_tracker_locked_in_the_wrong_alignment_moves_to_the_one_that_fits_bett
     # pairs with its neighbour; the box does not fit): the estimate stays there, locked ...
     stuck = held_in_the_wrong_lane(replace(TopometricParams(), rival_frames=10**6))
     assert all(abs(lateral - 1.0) < 0.05 and locked for lateral, locked in stuck)
+    # (and so it does when the better alignment rests on fewer points than a rival needs)
+    few = held_in_the_wrong_lane(replace(TopometricParams(), rival_pairs=10**6))
+    assert all(abs(lateral - 1.0) < 0.05 and locked for lateral, locked in few)
     # ... until fit after fit from many guesses (the right lane, the box too) says otherwise
     params = TopometricParams()
     trace = held_in_the_wrong_lane(params)
