@@ -48,6 +48,16 @@ def taught_edge(
     return path, depths
 
 
+def depth_tracker(
+    path: EdgePath, depths: list[np.ndarray], params: TopometricParams
+) -> PathTracker:
+    """A tracker of the one edge ``path`` whose images show no features, with the depth
+    profiles ``depths`` taught along it."""
+    return PathTracker(
+        (path,), (NO_FEATURES,) * path.n_images, np.array([0]), params, depth=lambda k: depths[k]
+    )
+
+
 def run(
     offset: float, heading: float, steps: int = 200, seed: int = 0, facing_from: int = 0
 ) -> list[tuple[float, float, bool]]:
@@ -58,9 +68,7 @@ def run(
     start = np.array([0.6, 1.5, 0.0])  # the taught edge runs along the room's middle
     path, depths = taught_edge(start)
     params = TopometricParams()
-    tracker = PathTracker(
-        (path,), (NO_FEATURES,) * path.n_images, np.array([0]), params, depth=lambda k: depths[k]
-    )
+    tracker = depth_tracker(path, depths, params)
     truth = compose(start, np.array([0.3, offset, heading]))
     decision = Decision(Action.navigate(0), 1, {}, 0)
     v = w = 0.0
@@ -163,9 +171,7 @@ def held_in_the_wrong_lane(params: TopometricParams) -> list[tuple[float, bool]]
     start = np.array([1.0, 0.5, 0.0])
     n = 40
     path, depths = taught_edge(start, n, walls=LANES)
-    tracker = PathTracker(
-        (path,), (NO_FEATURES,) * n, np.array([0]), params, depth=lambda k: depths[k]
-    )
+    tracker = depth_tracker(path, depths, params)
     decision = Decision(Action.navigate(0), 1, {}, 0)
     tracker._start(0, decision, 10)
     tracker.mean = path.poses[10] + np.array([0.0, 1.0, 0.0])
