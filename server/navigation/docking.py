@@ -225,7 +225,9 @@ class PlaceDocking:
     """Docking on the goal's spin images: the phase (idle, look, scan, creep, turn, done, off), axes
     docked, the spin image docked on, radians turned and metres crept (as commanded) in this
     phase, the last few log scales on this axis, radians turned with the belief off the goal,
-    and whether this is the second axis of docking along an edge."""
+    and whether this is the second axis of docking along an edge; ``turned``: radians turned
+    since place docking started, whatever the phase (the depth's turning budget: a spot found
+    and lost again starts the look afresh)."""
 
     phase: str = "idle"
     axes: int = 0
@@ -236,6 +238,7 @@ class PlaceDocking:
     away_rad: float = 0.0
     second_axis: bool = False
     scan_misses: int = 0
+    turned: float = 0.0
 
     def start(self, phase: str) -> None:
         self.phase, self.rad, self.m = phase, 0.0, 0.0
@@ -397,6 +400,7 @@ class Docking:
         if last is None:
             return False
         pl.rad += abs(last.w) * obs.dt
+        pl.turned += abs(last.w) * obs.dt
         pl.m += abs(last.v) * obs.dt
         if not obs.at_goal:
             pl.away_rad += abs(last.w) * obs.dt
@@ -410,8 +414,15 @@ class Docking:
         return Proposal(command, why)
 
     def _look(self, obs: Observation) -> Proposal | None:
-        """Turn until a spin image is in view and lined up; ``None`` once it is (creep on)."""
+        """Turn until a spin image is in view and lined up; ``None`` once it is (creep on). A
+        robot with depth turns for the depth profiles' spot only (:meth:`_scan_dock`), up to
+        ``place_dock_turns`` turns since place docking started, then gives up (``off``)."""
         pl, p, mp = self.placing, self.p, self.p.motion
+        if obs.depth is not None and not pl.second_axis:  # by the depth only (NavigationParams)
+            if pl.turned >= 2 * np.pi * p.place_dock_turns:
+                pl.phase = "off"  # the depth found no spot: the round trip takes over
+                return None
+            return self._turn("looking for the taught spot by the depth profiles")
         target, fit = look_fit(obs.views, self._spins(obs), p)
         seen = fit is not None and fit.inliers >= p.dock_min_inliers
         if fit is None or not seen or abs(fit.offset) > mp.toward_offset:

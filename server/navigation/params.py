@@ -111,6 +111,11 @@ class NavigationParams:
       furniture 43/50 instead of 37/50); it costs 3 runs in the unchanged home that the round
       trip had brought onto the spot and docking left 0.6-0.9 m off (a scale seen along one
       view at close range, with parallax, can mislead).
+      A robot with a depth sensor docks on a place by the depth profiles only
+      (:func:`~server.navigation.docking.spot_by_scan`), turning up to ``place_dock_turns``
+      turns in all for them, then takes the round trip, which comes in along an edge with the
+      path tracker: the floor's texture repeats every metre or two, and the views' scale
+      settled 1.4-2 m from the spot (docs/navigation.md section 4).
     * ``place_dock_away`` (pi rad): place docking gives up (the round trip takes over) once the
       robot has turned this far while docking with the belief off the goal. At the place its
       spin images show all round; a turn that mostly sees elsewhere says a look-alike view
