@@ -279,16 +279,18 @@ class Docking:
         read at most its target: nothing during a quarter turn that this frame does not end
         (:meth:`place` turns on, or gives up with the belief off the goal, and then
         :meth:`confirm` has nothing to confirm), the target only while creeping (a lost view
-        turns without looking). A frame that asks for nothing zooms nothing."""
+        turns without looking), no spin view while it docks by the depth only
+        (:meth:`_by_depth`). A frame that asks for nothing zooms nothing."""
         pl = self.placing
         if self.p.place_dock and pl.phase == "turn" and not self._turn_ends(obs):
             return ViewRequest()
         if self.p.place_dock and pl.phase == "creep":
             return ViewRequest(zoomed=frozenset({int(pl.target if pl.target is not None else 0)}))
         zoomed: set[int] = set()
-        if (self.p.place_dock and pl.phase in ("look", "scan", "turn", "creep")) or (
-            pl.phase == "idle" and obs.at_goal
-        ):
+        looks = pl.phase in ("turn", "creep") or (
+            pl.phase in ("look", "scan") and not self._by_depth(obs)
+        )
+        if (self.p.place_dock and looks) or (pl.phase == "idle" and obs.at_goal):
             zoomed.update(self._spins(obs))
             if pl.target is not None:
                 zoomed.add(pl.target)
@@ -409,6 +411,12 @@ class Docking:
                 return True
         return False
 
+    def _by_depth(self, obs: Observation) -> bool:
+        """Whether place docking looks by the depth profiles only this frame (reading no spin
+        view): the robot has depth and this is not the second axis of docking along an edge
+        (``NavigationParams.place_dock``)."""
+        return obs.depth is not None and not self.placing.second_axis
+
     def _turn(self, why: str) -> Proposal:
         command = Command(*rotate_command(self.p.motion), Action.do_nothing(), None, "place-dock")
         return Proposal(command, why)
@@ -418,7 +426,7 @@ class Docking:
         robot with depth turns for the depth profiles' spot only (:meth:`_scan_dock`), up to
         ``place_dock_turns`` turns since place docking started, then gives up (``off``)."""
         pl, p, mp = self.placing, self.p, self.p.motion
-        if obs.depth is not None and not pl.second_axis:  # by the depth only (NavigationParams)
+        if self._by_depth(obs):
             if pl.turned >= 2 * np.pi * p.place_dock_turns:
                 pl.phase = "off"  # the depth found no spot: the round trip takes over
                 return None

@@ -5,12 +5,13 @@ on floors whose texture repeats); without depth the views' scale docks as before
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 from navigation_testkit import B, observation, runtime
 
 from server.navigation.docking import Docking
-from server.navigation.observation import Observation, Views
+from server.navigation.observation import Observation, ViewRequest, Views
 from server.vision.homing import ScaleResult
 
 LINED_UP = ScaleResult(scale=1.0, rotation=0.0, inliers=40, n_matches=60, offset=0.0)
@@ -54,3 +55,12 @@ def test_without_depth_the_views_scale_docks() -> None:
     docking, obs = looking(None)
     proposal = docking.place(obs)
     assert proposal is not None and docking.placing.phase == "creep"
+
+
+def test_looking_by_the_depth_asks_for_no_spin_view_and_reads_none() -> None:
+    """The look reads no spin view with depth, so it asks for none (no zooms made): the frame
+    runs on no views at all and turns (a view read unasked would raise)."""
+    docking, obs = looking(FLAT)
+    assert docking.wants(obs) == ViewRequest()
+    proposal = docking.place(replace(obs, views=Views()))
+    assert proposal is not None and docking.placing.phase == "look"
