@@ -165,25 +165,29 @@ LANES = [  # a room 5.5 m x 3 m split into three lanes by two long desks; a box 
 ]
 
 
-def held_in_the_wrong_lane(params: TopometricParams) -> list[tuple[float, bool]]:
-    """A robot standing on a path taught down lane 0, its tracker locked (sd 0.02 m) one
-    lane over, 1 m to the left; (estimated lateral, locked) after each of 30 frames."""
-    start = np.array([1.0, 0.5, 0.0])
-    n = 40
-    path, depths = taught_edge(start, n, walls=LANES)
+def held_in_the_wrong_lane(
+    params: TopometricParams,
+    walls: list[tuple[float, float, float, float]] = LANES,
+    start: tuple[float, float, float] = (1.0, 0.5, 0.0),
+    offset: float = 1.0,
+) -> list[tuple[float, bool]]:
+    """A robot standing on a path taught from ``start`` in the room ``walls`` (by default
+    down lane 0), its tracker locked (sd 0.02 m) ``offset`` m to the left of it (by default
+    one lane over); (estimated lateral, locked) after each of 30 frames."""
+    path, depths = taught_edge(np.array(start), 40, walls=walls)
     tracker = depth_tracker(path, depths, params)
     decision = Decision(Action.navigate(0), 1, {}, 0)
     tracker._start(0, decision, 10)
-    tracker.mean = path.poses[10] + np.array([0.0, 1.0, 0.0])
+    tracker.mean = path.poses[10] + np.array([0.0, offset, 0.0])
     tracker.cov = np.diag([0.05**2, 0.02**2, 0.01**2])
     tracker.fixed_frames, tracker.last_fix = 10, 0.0
     tracker.estimate = tracker._estimate(0.0, 1)
     assert tracker.estimate.locked
-    truth = compose(start, path.poses[10])
+    truth = compose(np.array(start), path.poses[10])
     rng = np.random.default_rng(0)
     out = []
     for step in range(1, 31):
-        depth = room_profile(*truth, walls=LANES) + rng.normal(0, 0.01, 31)
+        depth = room_profile(*truth, walls=walls) + rng.normal(0, 0.01, 31)
         est = tracker.step(
             NO_FEATURES,
             t=0.1 * step,
@@ -212,5 +216,21 @@ def test_a_tracker_locked_in_the_wrong_alignment_moves_to_the_one_that_fits_bett
     trace = held_in_the_wrong_lane(params)
     moved = next(k for k, (lateral, _) in enumerate(trace) if abs(lateral) < 0.05)
     assert moved == params.rival_frames - 1  # on the eighth fit in a row, not before
+    assert not trace[moved][1]  # not locked until measured again ...
+    assert all(abs(lateral) < 0.05 and locked for lateral, locked in trace[moved + 6 :])
+
+
+def test_a_tracker_whose_own_alignment_the_gate_refuses_fit_after_fit_is_widened() -> None:
+    # in the room, the profile aligned from an estimate locked 0.5 m beside the robot lands on
+    # the robot, too far for the gate; the sideways starts land there too (no better rival)
+    beside = {"walls": WALLS, "start": (0.6, 1.5, 0.0), "offset": 0.5}
+    stuck = held_in_the_wrong_lane(replace(TopometricParams(), refute_fits=10**6), **beside)
+    assert all(abs(lateral - 0.5) < 0.02 for lateral, _ in stuck)
+    # refuted on eight fits in a row, its uncertainty is widened and the fits move it
+    params = TopometricParams()
+    trace = held_in_the_wrong_lane(params, **beside)
+    moved = next(k for k, (lateral, _) in enumerate(trace) if abs(lateral) < 0.05)
+    assert moved >= params.refute_fits - 1  # not before the eighth refused fit
+    assert all(abs(lateral - 0.5) < 0.02 for lateral, _ in trace[:moved])
     assert not trace[moved][1]  # not locked until measured again ...
     assert all(abs(lateral) < 0.05 and locked for lateral, locked in trace[moved + 6 :])
