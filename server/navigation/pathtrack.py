@@ -99,9 +99,9 @@ class TopometricParams:
       heading's is kept) and it is not locked until measured again, so the fits can move it.
       The rival above needs a better alignment from the sideways starts; here the alignment
       from the estimate itself lands away from it, fit after fit, and the gate refuses it (a
-      robot tracked 0.3 m right of the path, sd 0.05 m, stood 1.1 m from it with the fits
-      saying left of the estimate on 34 of 38 frames, and drove into the furniture beside the
-      path until it was stuck).
+      robot tracked 0.3 m right of the path, sd 0.05 m, stood 1.1 m from it; the fits put it
+      left of the estimate on 32 of 38 frames, the gate refused 34 of them, and it drove into
+      the furniture beside the path until it was stuck).
     * ``depth_fov_deg`` (90): the field of view the depth profile's rays span (as
       ``MotionParams.depth_fov_deg``).
     * ``gate`` (9.0): a measurement whose squared Mahalanobis distance exceeds this is not
