@@ -29,9 +29,16 @@ from server.motion import (
 )
 from server.navigation.command import Command, Proposal
 from server.navigation.geometry import relative
+from server.navigation.localplan import ObstacleMemory, blocked, plan
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
 from server.navigation.pathtrack import PathEstimate
-from server.navigation.pursuit import heading_error, lookahead_point, pursue, turn_to
+from server.navigation.pursuit import (
+    heading_error,
+    lookahead_point,
+    lookahead_s,
+    pursue,
+    turn_to,
+)
 from server.navigation.runtime import TourRuntime
 
 
@@ -186,10 +193,13 @@ def asked_edge(obs: Observation) -> int | None:
     return None
 
 
-def track_command(rt: TourRuntime, obs: Observation, est: PathEstimate) -> tuple[Command, str]:
+def track_command(
+    rt: TourRuntime, obs: Observation, est: PathEstimate, memory: ObstacleMemory | None = None
+) -> tuple[Command, str]:
     """Follow the taught path by the pose relative to it (regulated pure pursuit,
-    :mod:`server.navigation.pursuit`); at the end of the route, face the way the path was
-    taught into the goal."""
+    :mod:`server.navigation.pursuit`), round an obstacle in the way by a local plan when
+    ``memory`` remembers one (:func:`detour`); at the end of the route, face the way the path
+    was taught into the goal."""
     tp = rt.params.topometric
     path = rt.paths[est.edge]
     into_goal = rt.graph.edges[est.edge].target == obs.goal
@@ -213,16 +223,45 @@ def track_command(rt: TourRuntime, obs: Observation, est: PathEstimate) -> tuple
         error = heading_error(est.pose, float(path.poses[-1, 2]))
         v, w = (0.0, 0.0) if abs(error) <= 0.05 else turn_to(error, tp.pursuit)
         return Command(v, w, action, est.image, "follow"), "at the goal: facing the way taught"
+    nearest = nearest_ahead(obs.depth, rt.params.motion)
+    why = f"the path {est.lateral_m:+.2f} m to its side (sd {est.sigma_lateral:.2f} m)"
+    way = detour(rt, est, memory) if memory is not None else None
+    if way is not None:
+        v, w = pursue(
+            np.zeros(3), way, params=tp.pursuit, remaining_m=est.remaining_m, nearest_m=nearest
+        )
+        return Command(v, w, action, est.image, "follow"), f"round an obstacle to {why}"
     target = lookahead_point(path, est.along_m, est.lateral_m, tp.pursuit)
     v, w = pursue(
-        est.pose,
-        target,
-        params=tp.pursuit,
-        remaining_m=est.remaining_m,
-        nearest_m=nearest_ahead(obs.depth, rt.params.motion),
+        est.pose, target, params=tp.pursuit, remaining_m=est.remaining_m, nearest_m=nearest
     )
-    why = f"tracking the path {est.lateral_m:+.2f} m to its side (sd {est.sigma_lateral:.2f} m)"
-    return Command(v, w, action, est.image, "follow"), why
+    return Command(v, w, action, est.image, "follow"), f"tracking {why}"
+
+
+def detour(
+    rt: TourRuntime, est: PathEstimate, memory: ObstacleMemory
+) -> npt.NDArray[np.float64] | None:
+    """``(2,)`` the point to steer at in the robot's frame (metres ahead, to the left) when
+    an obstacle the robot remembers lies on the straight line to the point pure pursuit
+    steers at: on the local plan round it to the path ahead
+    (:func:`server.navigation.localplan.plan`); ``None`` when the way is clear, the local
+    plan is off, or no way round is found (then pure pursuit steers, and obstacle avoidance
+    keeps the robot off things)."""
+    tp = rt.params.topometric
+    lp = tp.local_plan
+    if not lp.enabled or len(memory.points) == 0:
+        return None
+    path = rt.paths[est.edge]
+    s0 = lookahead_s(est.along_m, est.lateral_m, tp.pursuit)
+    ahead = np.arange(s0, s0 + lp.join_m + 1e-9, 2 * lp.cell_m)
+    points = np.array([path.point_at(s) for s in ahead])  # path frame, ends clamped
+    x, y, th = est.pose
+    c, s = np.cos(th), np.sin(th)
+    d = points - np.array([x, y])
+    goals = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+    if not blocked(memory.points, goals[0], lp):
+        return None
+    return plan(memory.points, goals, lp)
 
 
 class Follow:
@@ -234,6 +273,9 @@ class Follow:
 
     def __init__(self, runtime: TourRuntime) -> None:
         self.rt = runtime
+        self.memory = ObstacleMemory(
+            runtime.params.topometric.local_plan, runtime.params.motion.depth_fov_deg
+        )
 
     def _target(self, obs: Observation) -> tuple[int, int] | None:
         d = obs.decision
@@ -248,9 +290,10 @@ class Follow:
         return follow_views(self.rt, *target)
 
     def propose(self, obs: Observation) -> Proposal | None:
+        self.memory.update(obs.v, obs.w, obs.dt, obs.depth)
         est = tracked(self.rt, obs)
         if est is not None:
-            return Proposal(*track_command(self.rt, obs, est))
+            return Proposal(*track_command(self.rt, obs, est, self.memory))
         target = self._target(obs)
         if target is None:
             return None

@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from server.belief.model import ActionKind
 from server.navigation.geometry import EdgePath, compose, relative, wrap
+from server.navigation.localplan import LocalPlanParams
 from server.navigation.pursuit import PursuitParams
 from server.navigation.scanmatch import (
     ScanFit,
@@ -143,8 +144,9 @@ class TopometricParams:
     * ``retrace_after_s`` (2.0 s), ``retrace_max_m`` (2.5 m): a tracker that has been lost
       this long drives back along its own trace to where it was last locked, if that is no
       further than this.
-    * ``noise``, ``relpose``, ``pursuit``: the odometry's uncertainty, the two-view fit and
-      the path follower's settings.
+    * ``noise``, ``relpose``, ``pursuit``, ``local_plan``: the odometry's uncertainty, the
+      two-view fit, the path follower's settings and its plan around obstacles
+      (:mod:`server.navigation.localplan`).
     """
 
     enabled: bool = True
@@ -190,6 +192,7 @@ class TopometricParams:
     relpose: RelPoseParams = field(default_factory=RelPoseParams)
     scan_fit: ScanParams = field(default_factory=ScanParams)
     pursuit: PursuitParams = field(default_factory=PursuitParams)
+    local_plan: LocalPlanParams = field(default_factory=LocalPlanParams)
 
     @property
     def camera(self) -> CameraModel:

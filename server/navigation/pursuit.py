@@ -65,10 +65,16 @@ class PursuitParams:
             raise ValueError("lookahead_m and max_w must be positive")
 
 
+def lookahead_s(s: float, lateral: float, params: PursuitParams) -> float:
+    """Metres along the path of the point steered at: ``lookahead_m + lookahead_per_m *
+    |lateral|`` beyond ``s`` (not clamped)."""
+    return s + params.lookahead_m + params.lookahead_per_m * abs(lateral)
+
+
 def lookahead_point(path: EdgePath, s: float, lateral: float, params: PursuitParams) -> FloatArray:
-    """``(2,)`` the point steered at, in the path's frame: ``lookahead_m + lookahead_per_m *
-    |lateral|`` along the path from ``s`` (clamped to its end)."""
-    return path.point_at(s + params.lookahead_m + params.lookahead_per_m * abs(lateral))
+    """``(2,)`` the point steered at, in the path's frame: :func:`lookahead_s` (clamped to
+    the path's end)."""
+    return path.point_at(lookahead_s(s, lateral, params))
 
 
 def pursue(
