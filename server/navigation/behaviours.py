@@ -29,7 +29,7 @@ from server.motion import (
 )
 from server.navigation.command import Command, Proposal
 from server.navigation.geometry import relative
-from server.navigation.localplan import ObstacleMemory, blocked, plan
+from server.navigation.localplan import ObstacleMemory, blocked, goals_ahead, plan
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import (
@@ -251,14 +251,8 @@ def detour(
     lp = tp.local_plan
     if not lp.enabled or len(memory.points) == 0:
         return None
-    path = rt.paths[est.edge]
     s0 = lookahead_s(est.along_m, est.lateral_m, tp.pursuit)
-    ahead = np.arange(s0, s0 + lp.join_m + 1e-9, 2 * lp.cell_m)
-    points = np.array([path.point_at(s) for s in ahead])  # path frame, ends clamped
-    x, y, th = est.pose
-    c, s = np.cos(th), np.sin(th)
-    d = points - np.array([x, y])
-    goals = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+    goals = goals_ahead(rt.paths[est.edge], est.pose, s0, lp)
     if not blocked(memory.points, goals[0], lp):
         return None
     return plan(memory.points, goals, lp)

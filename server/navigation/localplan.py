@@ -34,6 +34,9 @@ import numpy.typing as npt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from server.navigation.geometry import EdgePath
+from server.navigation.tracking import move
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
@@ -95,15 +98,26 @@ def ray_hits(depth: npt.ArrayLike, fov_deg: float, range_m: float) -> FloatArray
 def carry(points: FloatArray, v: float, w: float, dt: float) -> FloatArray:
     """``(n, 2)`` points of the robot's old frame in its new one, after it drove ``v`` m/s
     and turned ``w`` rad/s for ``dt`` s (on an arc)."""
-    dth = w * dt
-    dist = v * dt
-    # chord of the arc, at half the turn
-    dx, dy = dist * math.cos(dth / 2), dist * math.sin(dth / 2)
-    c, s = math.cos(dth), math.sin(dth)
-    shifted = points - np.array([dx, dy])
-    return np.stack(
-        [c * shifted[:, 0] + s * shifted[:, 1], -s * shifted[:, 0] + c * shifted[:, 1]], axis=1
-    )
+    return to_frame(move(np.zeros(3), v, w, dt), points)
+
+
+def to_frame(pose: npt.ArrayLike, points: npt.ArrayLike) -> FloatArray:
+    """``(n, 2)`` points ``(n, 2)`` seen from ``pose`` ``(3,)`` (both in one frame): metres
+    ahead of it and to its left."""
+    x, y, th = (float(a) for a in np.asarray(pose, dtype=np.float64))
+    d = np.asarray(points, dtype=np.float64).reshape(-1, 2) - np.array([x, y])
+    c, s = math.cos(th), math.sin(th)
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+
+
+def goals_ahead(
+    path: EdgePath, pose: npt.ArrayLike, s0: float, params: LocalPlanParams
+) -> FloatArray:
+    """``(m, 2)`` the plan's goals in the frame of ``pose`` (the robot's, in the path's
+    frame): the path from ``s0`` metres along to ``join_m`` further, every two cells
+    (clamped to the path's end)."""
+    ahead = np.arange(s0, s0 + params.join_m + 1e-9, 2 * params.cell_m)
+    return to_frame(pose, np.array([path.point_at(s) for s in ahead]))
 
 
 class ObstacleMemory:
@@ -215,10 +229,13 @@ def cell_costs(points: FloatArray, params: LocalPlanParams) -> FloatArray:
     return np.where(closed, np.inf, costs)
 
 
-def plan(points: FloatArray, goals: npt.ArrayLike, params: LocalPlanParams) -> FloatArray | None:
-    """The point to steer at ``(2,)`` on the cheapest way from the robot to one of ``goals``
-    ``(m, 2)`` (the path ahead, nearest first; each costs its index times the spacing of
-    the goals on top of the way to it), around the remembered hits ``points`` ``(n, 2)``;
+def route(
+    points: FloatArray, goals: npt.ArrayLike, params: LocalPlanParams
+) -> tuple[FloatArray, float] | None:
+    """The cheapest way from the robot to one of ``goals`` ``(m, 2)`` (the path ahead,
+    nearest first: each costs its distance along the goals, in cells, on top of the way to
+    it) around the remembered hits ``points`` ``(n, 2)``: ``(k, 2)`` the cells' centres
+    from the robot's to the goal's, and the cost (cells, weighted by :func:`cell_costs`);
     ``None`` when no goal inside the grid can be reached."""
     p = params
     c = _half_cells(p)
@@ -244,9 +261,19 @@ def plan(points: FloatArray, goals: npt.ArrayLike, params: LocalPlanParams) -> F
     if not np.isfinite(total[best]):
         return None
     way = [int(goal_cells[best])]
-    while way[-1] != start and pred[way[-1]] >= 0:
+    while way[-1] != start:
         way.append(int(pred[way[-1]]))
     cells = np.array(way[::-1])
-    xy = (np.stack([cells // n, cells % n], axis=1) - c) * p.cell_m
-    far = np.nonzero(np.hypot(xy[:, 0], xy[:, 1]) >= p.waypoint_m)[0]
+    return (np.stack([cells // n, cells % n], axis=1) - c) * p.cell_m, float(total[best])
+
+
+def plan(points: FloatArray, goals: npt.ArrayLike, params: LocalPlanParams) -> FloatArray | None:
+    """``(2,)`` the point to steer at: on :func:`route`'s way, the first cell
+    ``waypoint_m`` or further from the robot (the goal, when nearer); ``None`` without a
+    way."""
+    found = route(points, goals, params)
+    if found is None:
+        return None
+    xy = found[0]
+    far = np.nonzero(np.hypot(xy[:, 0], xy[:, 1]) >= params.waypoint_m)[0]
     return xy[far[0]] if len(far) else xy[-1]
