@@ -29,7 +29,7 @@ from server.motion import (
 )
 from server.navigation.command import Command, Proposal
 from server.navigation.geometry import relative
-from server.navigation.localplan import ObstacleMemory, blocked, goals_ahead, plan
+from server.navigation.localplan import LocalPlanner, goals_ahead
 from server.navigation.observation import Observation, ViewRequest, Views, elapsed
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import (
@@ -194,11 +194,11 @@ def asked_edge(obs: Observation) -> int | None:
 
 
 def track_command(
-    rt: TourRuntime, obs: Observation, est: PathEstimate, memory: ObstacleMemory | None = None
+    rt: TourRuntime, obs: Observation, est: PathEstimate, local: LocalPlanner | None = None
 ) -> tuple[Command, str]:
     """Follow the taught path by the pose relative to it (regulated pure pursuit,
-    :mod:`server.navigation.pursuit`), round an obstacle in the way by a local plan when
-    ``memory`` remembers one (:func:`detour`); at the end of the route, face the way the path
+    :mod:`server.navigation.pursuit`), round an obstacle in the way by ``local``'s plan
+    (:func:`detour`); at the end of the route, face the way the path
     was taught into the goal."""
     tp = rt.params.topometric
     path = rt.paths[est.edge]
@@ -225,7 +225,7 @@ def track_command(
         return Command(v, w, action, est.image, "follow"), "at the goal: facing the way taught"
     nearest = nearest_ahead(obs.depth, rt.params.motion)
     why = f"the path {est.lateral_m:+.2f} m to its side (sd {est.sigma_lateral:.2f} m)"
-    way = detour(rt, est, memory) if memory is not None else None
+    way = detour(rt, est, local) if local is not None else None
     if way is not None:
         v, w = pursue(
             np.zeros(3), way, params=tp.pursuit, remaining_m=est.remaining_m, nearest_m=nearest
@@ -239,23 +239,19 @@ def track_command(
 
 
 def detour(
-    rt: TourRuntime, est: PathEstimate, memory: ObstacleMemory
+    rt: TourRuntime, est: PathEstimate, local: LocalPlanner
 ) -> npt.NDArray[np.float64] | None:
     """``(2,)`` the point to steer at in the robot's frame (metres ahead, to the left) when
     an obstacle the robot remembers lies on the straight line to the point pure pursuit
     steers at: on the local plan round it to the path ahead
-    (:func:`server.navigation.localplan.plan`); ``None`` when the way is clear, the local
-    plan is off, or no way round is found (then pure pursuit steers, and obstacle avoidance
-    keeps the robot off things)."""
+    (:meth:`server.navigation.localplan.LocalPlanner.steer`); ``None`` when the way is
+    clear, the local plan is off, or no way round is found (then pure pursuit steers, and
+    obstacle avoidance keeps the robot off things)."""
     tp = rt.params.topometric
-    lp = tp.local_plan
-    if not lp.enabled or len(memory.points) == 0:
+    if not tp.local_plan.enabled:
         return None
     s0 = lookahead_s(est.along_m, est.lateral_m, tp.pursuit)
-    goals = goals_ahead(rt.paths[est.edge], est.pose, s0, lp)
-    if not blocked(memory.points, goals[0], lp):
-        return None
-    return plan(memory.points, goals, lp)
+    return local.steer(goals_ahead(rt.paths[est.edge], est.pose, s0, tp.local_plan))
 
 
 class Follow:
@@ -267,7 +263,7 @@ class Follow:
 
     def __init__(self, runtime: TourRuntime) -> None:
         self.rt = runtime
-        self.memory = ObstacleMemory(
+        self.local = LocalPlanner(
             runtime.params.topometric.local_plan, runtime.params.motion.depth_fov_deg
         )
 
@@ -284,10 +280,10 @@ class Follow:
         return follow_views(self.rt, *target)
 
     def propose(self, obs: Observation) -> Proposal | None:
-        self.memory.update(obs.v, obs.w, obs.dt, obs.depth)
+        self.local.update(obs.v, obs.w, obs.dt, obs.depth)
         est = tracked(self.rt, obs)
         if est is not None:
-            return Proposal(*track_command(self.rt, obs, est, self.memory))
+            return Proposal(*track_command(self.rt, obs, est, self.local))
         target = self._target(obs)
         if target is None:
             return None

@@ -14,9 +14,11 @@ instead of two commands that cancel:
   seen again nearer than a ray now reaches through it is forgotten (a moved chair, drift).
 * :func:`blocked` says whether the straight line to the point steered at passes an
   obstacle.
-* :func:`plan` finds the cheapest way on a grid around the robot, from the robot to any of
+* :func:`route` finds the cheapest way on a grid around the robot, from the robot to any of
   the path's points ahead (cells near obstacles cost more, cells too near are closed, space
-  never seen counts as free), and returns the point on it to steer at.
+  never seen counts as free); :func:`waypoint` is the point on it to steer at.
+* :class:`LocalPlanner` holds the memory and the way planned last, and keeps that way while
+  it stays nearly as cheap as the best new one.
 
 All positions are in the robot's frame (metres ahead, metres to the left). Pure: NumPy,
 OpenCV, SciPy.
@@ -61,6 +63,9 @@ class LocalPlanParams:
         join_m (1.5): the plan's goal is the path from the point steered at to this much
             further on; a point further along costs its extra distance.
         waypoint_m (0.4): the plan's point this far from the robot is steered at.
+        keep (1.3): the way planned on the last frame is kept while it costs at most this
+            many times the cheapest new one (re-planned from scratch every frame, a robot
+            turning in front of a sofa saw its two ends in turn and chose each in turn).
     """
 
     enabled: bool = True
@@ -73,6 +78,7 @@ class LocalPlanParams:
     wary_cost: float = 5.0
     join_m: float = 1.5
     waypoint_m: float = 0.4
+    keep: float = 1.3
 
     def __post_init__(self) -> None:
         if not 0 < self.closed_m < self.wary_m:
@@ -81,6 +87,8 @@ class LocalPlanParams:
             raise ValueError("need 0 < cell_m < extent_m")
         if self.memory_s <= 0 or self.range_m <= 0 or self.waypoint_m <= 0:
             raise ValueError("memory_s, range_m and waypoint_m must be positive")
+        if self.keep < 1.0:
+            raise ValueError("keep must be at least 1")
 
 
 def ray_hits(depth: npt.ArrayLike, fov_deg: float, range_m: float) -> FloatArray:
@@ -237,26 +245,37 @@ def route(
     it) around the remembered hits ``points`` ``(n, 2)``: ``(k, 2)`` the cells' centres
     from the robot's to the goal's, and the cost (cells, weighted by :func:`cell_costs`);
     ``None`` when no goal inside the grid can be reached."""
+    return _route(cell_costs(points, params), _goals(goals), params)
+
+
+def _goals(goals: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``(m, 2)`` goals and ``(m,)`` metres along them from the first."""
+    g = np.asarray(goals, dtype=np.float64).reshape(-1, 2)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g, axis=0), axis=1))])
+    return g, along
+
+
+def _route(
+    costs: FloatArray, goals: tuple[FloatArray, FloatArray], params: LocalPlanParams
+) -> tuple[FloatArray, float] | None:
+    """:func:`route` on the grid's ``costs`` ``(n, n)``."""
     p = params
     c = _half_cells(p)
     n = 2 * c + 1
-    g = np.asarray(goals, dtype=np.float64).reshape(-1, 2)
-    if len(g) == 0:
-        return None
-    spacing = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(g, axis=0), axis=1))])
+    g, along = goals
     gij = np.rint(g / p.cell_m).astype(np.int64) + c
     inside = np.all((gij >= 0) & (gij < n), axis=1)
     if not inside.any():
         return None
-    costs = cell_costs(points, p).ravel()
+    flat = costs.ravel()
     a, b, length = _grid_edges(n)
-    weight = length * (costs[a] + costs[b]) / 2
+    weight = length * (flat[a] + flat[b]) / 2
     ok = np.isfinite(weight)
     graph = csr_matrix((weight[ok], (a[ok], b[ok])), shape=(n * n, n * n))
     start = c * n + c
     dist, pred = dijkstra(graph, directed=False, indices=start, return_predecessors=True)
     goal_cells = gij[inside, 0] * n + gij[inside, 1]
-    total = dist[goal_cells] + spacing[inside] / p.cell_m
+    total = dist[goal_cells] + along[inside] / p.cell_m
     best = int(np.argmin(total))
     if not np.isfinite(total[best]):
         return None
@@ -267,13 +286,74 @@ def route(
     return (np.stack([cells // n, cells % n], axis=1) - c) * p.cell_m, float(total[best])
 
 
-def plan(points: FloatArray, goals: npt.ArrayLike, params: LocalPlanParams) -> FloatArray | None:
-    """``(2,)`` the point to steer at: on :func:`route`'s way, the first cell
-    ``waypoint_m`` or further from the robot (the goal, when nearer); ``None`` without a
-    way."""
-    found = route(points, goals, params)
-    if found is None:
-        return None
-    xy = found[0]
-    far = np.nonzero(np.hypot(xy[:, 0], xy[:, 1]) >= params.waypoint_m)[0]
-    return xy[far[0]] if len(far) else xy[-1]
+def way_cost(
+    way: FloatArray,
+    costs: FloatArray,
+    goals: tuple[FloatArray, FloatArray],
+    params: LocalPlanParams,
+) -> float:
+    """What following ``way`` ``(k, 2)`` (a way planned before, in the robot's frame now)
+    costs on the grid's ``costs`` from its point nearest the robot, as :func:`route` counts
+    it; ``inf`` when it crosses a closed cell, leaves the grid or no longer ends at one of
+    ``goals``."""
+    p = params
+    c = _half_cells(p)
+    n = len(costs)
+    g, along = goals
+    if len(way) == 0 or len(g) == 0:
+        return math.inf
+    end = np.linalg.norm(g - way[-1], axis=1)
+    if end.min() > 2 * p.cell_m:
+        return math.inf
+    k = int(np.argmin(np.linalg.norm(way, axis=1)))
+    pts = np.concatenate([np.zeros((1, 2)), way[k:]])
+    ij = np.rint(pts / p.cell_m).astype(np.int64) + c
+    if np.any((ij < 0) | (ij >= n)):
+        return math.inf
+    cc = costs[ij[:, 0], ij[:, 1]]
+    steps = np.linalg.norm(np.diff(pts, axis=0), axis=1) / p.cell_m
+    return float(np.sum(steps * (cc[:-1] + cc[1:]) / 2) + along[int(np.argmin(end))] / p.cell_m)
+
+
+def waypoint(way: FloatArray, params: LocalPlanParams) -> FloatArray:
+    """``(2,)`` the point of ``way`` ``(k, 2)`` to steer at: the first ``waypoint_m`` or
+    further from the robot (its end, when nearer)."""
+    far = np.nonzero(np.hypot(way[:, 0], way[:, 1]) >= params.waypoint_m)[0]
+    out: FloatArray = way[far[0]] if len(far) else way[-1]
+    return out
+
+
+class LocalPlanner:
+    """The obstacle memory and the way last planned, both moved with odometry: one per
+    task; :meth:`update` once per frame, :meth:`steer` when following the path."""
+
+    def __init__(self, params: LocalPlanParams, fov_deg: float) -> None:
+        self.params = params
+        self.memory = ObstacleMemory(params, fov_deg)
+        self.way: FloatArray | None = None
+
+    def update(self, v: float, w: float, dt: float, depth: npt.ArrayLike | None) -> None:
+        """The frame's odometry (m/s, rad/s over ``dt`` s) and depth profile."""
+        self.memory.update(v, w, dt, depth)
+        if self.way is not None:
+            self.way = carry(self.way, v, w, dt)
+
+    def steer(self, goals: npt.ArrayLike) -> FloatArray | None:
+        """``(2,)`` the point to steer at when a remembered obstacle lies on the straight
+        line to the first of ``goals`` ``(m, 2)`` (the path ahead, nearest first): on the
+        way planned last frame while it costs at most ``keep`` times the cheapest new way,
+        else on the new one. ``None`` when the line is clear or no way is found."""
+        p = self.params
+        g = _goals(goals)
+        points = self.memory.points
+        if len(g[0]) == 0 or len(points) == 0 or not blocked(points, g[0][0], p):
+            self.way = None
+            return None
+        costs = cell_costs(points, p)
+        found = _route(costs, g, p)
+        kept = math.inf if self.way is None else way_cost(self.way, costs, g, p)
+        way = self.way if math.isfinite(kept) else None
+        if found is not None and kept > p.keep * found[1]:
+            way = found[0]
+        self.way = way
+        return None if way is None else waypoint(way, p)
