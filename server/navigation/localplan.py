@@ -27,7 +27,7 @@ OpenCV, SciPy.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
@@ -37,6 +37,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from server.navigation.geometry import EdgePath
+from server.navigation.scanmatch import ScanParams, profile_points
 from server.navigation.tracking import move
 
 FloatArray = npt.NDArray[np.float64]
@@ -91,18 +92,6 @@ class LocalPlanParams:
             raise ValueError("keep must be at least 1")
 
 
-def ray_hits(depth: npt.ArrayLike, fov_deg: float, range_m: float) -> FloatArray:
-    """``(m, 2)`` where the depth profile's rays (``(n,)`` metres, left to right across
-    ``fov_deg``) hit something nearer than ``range_m``, in the robot's frame."""
-    ranges = np.asarray(depth, dtype=np.float64).ravel()
-    n = len(ranges)
-    half = math.radians(fov_deg) / 2
-    angles = np.linspace(half, -half, n) if n > 1 else np.zeros(n)
-    hit = np.isfinite(ranges) & (ranges < range_m)
-    r, a = ranges[hit], angles[hit]
-    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
-
-
 def carry(points: FloatArray, v: float, w: float, dt: float) -> FloatArray:
     """``(n, 2)`` points of the robot's old frame in its new one, after it drove ``v`` m/s
     and turned ``w`` rad/s for ``dt`` s (on an arc)."""
@@ -138,6 +127,7 @@ class ObstacleMemory:
         self.fov_deg = fov_deg
         self.points: FloatArray = np.zeros((0, 2))
         self.ages: FloatArray = np.zeros(0)
+        self._near = replace(ScanParams(), max_range_m=params.range_m)
 
     def update(self, v: float, w: float, dt: float, depth: npt.ArrayLike | None) -> None:
         """Move the remembered hits by the motion of the last ``dt`` s, forget the old, the
@@ -149,7 +139,7 @@ class ObstacleMemory:
             ranges = np.asarray(depth, dtype=np.float64).ravel()
             keep = ~_seen_through(points, ranges, self.fov_deg, p.cell_m * 2)
             points, ages = points[keep], ages[keep]
-            new = ray_hits(ranges, self.fov_deg, p.range_m)
+            new = profile_points(ranges, self.fov_deg, self._near)
             points = np.concatenate([new, points])
             ages = np.concatenate([np.zeros(len(new)), ages])
         near = (ages <= p.memory_s) & (np.abs(points).max(axis=1, initial=0.0) <= p.extent_m)
@@ -170,7 +160,7 @@ def _seen_through(
     if n < 2 or len(points) == 0:
         return np.zeros(len(points), dtype=bool)
     half = math.radians(fov_deg) / 2
-    bearing = np.arctan2(points[:, 1], points[:, 0])
+    bearing = np.arctan2(points[:, 1], points[:, 0])  # rays evenly from +half to -half
     dist = np.hypot(points[:, 0], points[:, 1])
     inside = np.abs(bearing) <= half
     ray = np.clip(np.rint((half - bearing) / (2 * half) * (n - 1)), 0, n - 1).astype(np.int64)

@@ -28,7 +28,6 @@ from server.navigation.localplan import (
     carry,
     cell_costs,
     goals_ahead,
-    ray_hits,
     route,
     waypoint,
 )
@@ -46,16 +45,6 @@ def test_carried_points_are_where_the_moved_robot_sees_them() -> None:
         after = move(np.zeros(3), v, w, dt)
         naive = np.array([relative(after, [*p, 0.0])[:2] for p in world])
         assert np.allclose(carry(world, v, w, dt), naive, atol=1e-12)
-
-
-def test_ray_hits_lie_along_their_rays_and_far_readings_are_dropped() -> None:
-    depth = np.array([1.0, np.inf, 2.0, 0.5, np.nan])
-    hits = ray_hits(depth, 90.0, 1.5)
-    angles = np.radians([45.0, 22.5, 0.0, -22.5, -45.0])
-    expected = [(math.cos(a), math.sin(a)) for a in angles[[0]]] + [
-        (0.5 * math.cos(angles[3]), 0.5 * math.sin(angles[3]))
-    ]
-    assert np.allclose(hits, expected)
 
 
 def test_the_memory_keeps_what_turned_out_of_view_and_forgets_the_old_and_the_seen_through() -> (
