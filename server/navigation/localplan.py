@@ -65,8 +65,9 @@ class LocalPlanParams:
             further on; a point further along costs its extra distance.
         waypoint_m (0.4): the plan's point this far from the robot is steered at.
         keep (1.3): the way planned on the last frame is kept while it costs at most this
-            many times the cheapest new one (re-planned from scratch every frame, a robot
-            turning in front of a sofa saw its two ends in turn and chose each in turn).
+            many times the cheapest new one (0: planned afresh every frame; then, and with
+            1, a robot setting off beside a sofa saw more of one end, then of the other, as
+            it turned, and chose each in turn without moving).
     """
 
     enabled: bool = True
@@ -88,8 +89,8 @@ class LocalPlanParams:
             raise ValueError("need 0 < cell_m < extent_m")
         if self.memory_s <= 0 or self.range_m <= 0 or self.waypoint_m <= 0:
             raise ValueError("memory_s, range_m and waypoint_m must be positive")
-        if self.keep < 1.0:
-            raise ValueError("keep must be at least 1")
+        if self.keep < 0.0:
+            raise ValueError("keep must not be negative")
 
 
 def carry(points: FloatArray, v: float, w: float, dt: float) -> FloatArray:

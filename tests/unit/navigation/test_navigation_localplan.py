@@ -175,17 +175,19 @@ def clearance(x: float, y: float) -> float:
     return out
 
 
-def drive(local: LocalPlanParams, steps: int = 400) -> tuple[list[float], float]:
-    """Drive from 1 m beside the path, facing the sofa between them, by pure pursuit (round
-    obstacles by the local plan when it is on) with obstacle avoidance blended in as the
-    navigator does; the truth is the estimate. The lateral offset after every step, the
-    least clearance."""
+def drive(
+    local: LocalPlanParams, heading: float = math.pi / 2, steps: int = 400
+) -> tuple[list[float], float]:
+    """Drive from 1 m beside the path, 0.35 m from the sofa between them, ``heading`` rad
+    from the path's direction (pi / 2: facing the sofa), by pure pursuit (round obstacles by
+    the local plan when it is on) with obstacle avoidance blended in as the navigator does;
+    the truth is the estimate. The lateral offset after every step, the least clearance."""
     n = 25
     edge = Edge(0, 1, tuple(range(n)), np.arange(n) * 0.8, np.full(n, 0.25), np.zeros(n))
     path = EdgePath.of(edge)  # 4.8 m straight on
     pp, mp = PursuitParams(), MotionParams()
     planner = LocalPlanner(local, FOV)
-    truth = np.array([1.6, 1.0, math.pi / 2])  # facing the sofa, 0.35 m from it
+    truth = np.array([1.6, 1.0, heading])
     v = w = 0.0
     side = 0
     offsets, least = [], math.inf
@@ -218,6 +220,15 @@ def test_beside_the_path_with_a_sofa_between_the_plan_takes_it_round_onto_the_pa
     assert least > 0.18  # the simulated robot's radius: never touched the sofa
     stuck, _ = drive(replace(P, enabled=False))
     assert len(stuck) == 400 and abs(stuck[-1]) > 0.5  # still below the sofa
+
+
+def test_the_way_planned_last_is_kept_so_the_robot_does_not_choose_each_end_in_turn() -> None:
+    # set off along the path: the sofa's far end is beyond the depth's reach, its near end
+    # behind the robot; turning, it sees more of one end, then of the other
+    offsets, least = drive(P, heading=0.0)
+    assert abs(offsets[-1]) < 0.25 and len(offsets) < 400 and least > 0.18
+    afresh, _ = drive(replace(P, keep=0.0), heading=0.0)  # planned afresh every frame
+    assert len(afresh) == 400 and abs(afresh[-1]) > 0.5
 
 
 def test_follow_steers_round_a_remembered_obstacle() -> None:
