@@ -36,7 +36,7 @@ import numpy.typing as npt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from server.navigation.geometry import EdgePath
+from server.navigation.geometry import EdgePath, relative
 from server.navigation.scanmatch import ScanParams, profile_points
 from server.navigation.tracking import move
 
@@ -96,16 +96,15 @@ class LocalPlanParams:
 def carry(points: FloatArray, v: float, w: float, dt: float) -> FloatArray:
     """``(n, 2)`` points of the robot's old frame in its new one, after it drove ``v`` m/s
     and turned ``w`` rad/s for ``dt`` s (on an arc)."""
-    return to_frame(move(np.zeros(3), v, w, dt), points)
+    return seen_from(move(np.zeros(3), v, w, dt), points)
 
 
-def to_frame(pose: npt.ArrayLike, points: npt.ArrayLike) -> FloatArray:
+def seen_from(pose: npt.ArrayLike, points: npt.ArrayLike) -> FloatArray:
     """``(n, 2)`` points ``(n, 2)`` seen from ``pose`` ``(3,)`` (both in one frame): metres
-    ahead of it and to its left."""
-    x, y, th = (float(a) for a in np.asarray(pose, dtype=np.float64))
-    d = np.asarray(points, dtype=np.float64).reshape(-1, 2) - np.array([x, y])
-    c, s = math.cos(th), math.sin(th)
-    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+    ahead of it and to its left (:func:`server.navigation.geometry.relative`)."""
+    xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out: FloatArray = relative(pose, np.column_stack([xy, np.zeros(len(xy))]))[:, :2]
+    return out
 
 
 def goals_ahead(
@@ -115,7 +114,7 @@ def goals_ahead(
     frame): the path from ``s0`` metres along to ``join_m`` further, every two cells
     (clamped to the path's end)."""
     ahead = np.arange(s0, s0 + params.join_m + 1e-9, 2 * params.cell_m)
-    return to_frame(pose, np.array([path.point_at(s) for s in ahead]))
+    return seen_from(pose, np.array([path.point_at(s) for s in ahead]))
 
 
 class ObstacleMemory:
@@ -188,6 +187,20 @@ def _half_cells(params: LocalPlanParams) -> int:
     return round(params.extent_m / params.cell_m)
 
 
+def _cell_of(xy: FloatArray, params: LocalPlanParams) -> IntArray:
+    """``(k, 2)`` the grid's (row, column) of each point ``(k, 2)`` (possibly outside it)."""
+    out: IntArray = np.rint(xy / params.cell_m).astype(np.int64) + _half_cells(params)
+    return out
+
+
+@lru_cache(maxsize=4)
+def _near_robot(n: int, cell_m: float, radius_m: float) -> npt.NDArray[np.bool_]:
+    """``(n, n)`` the grid's cells within ``radius_m`` of its centre (the robot)."""
+    c = n // 2
+    r = np.hypot(*np.meshgrid(np.arange(n) - c, np.arange(n) - c, indexing="ij")) * cell_m
+    return r <= radius_m
+
+
 @lru_cache(maxsize=4)
 def _grid_edges(n: int) -> tuple[IntArray, IntArray, FloatArray]:
     """The 8-neighbour links of an ``n`` x ``n`` grid, each once: ``(from, to, length)`` in
@@ -211,20 +224,20 @@ def cell_costs(points: FloatArray, params: LocalPlanParams) -> FloatArray:
     p = params
     c = _half_cells(p)
     n = 2 * c + 1
-    free = np.full((n, n), 255, dtype=np.uint8)
-    ij = np.rint(points / p.cell_m).astype(np.int64) + c
+    ij = _cell_of(points, p)
     inside = np.all((ij >= 0) & (ij < n), axis=1)
-    free[ij[inside, 0], ij[inside, 1]] = 0
-    clearance = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * p.cell_m
-    if not inside.any():
+    if inside.any():
+        free = np.full((n, n), 255, dtype=np.uint8)
+        free[ij[inside, 0], ij[inside, 1]] = 0
+        clearance = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * p.cell_m
+    else:
         clearance = np.full((n, n), np.inf, dtype=np.float32)
     wary = np.clip((p.wary_m - clearance) / (p.wary_m - p.closed_m), 0.0, 1.0)
     costs = 1.0 + (p.wary_cost - 1.0) * wary
     closed = clearance < p.closed_m
     # the robot may stand nearer than closed_m to something (avoidance lets it come to
     # 0.25 m): the cells it stands on stay passable, at the highest cost
-    r = np.hypot(*np.meshgrid(np.arange(n) - c, np.arange(n) - c, indexing="ij")) * p.cell_m
-    closed &= ~((r <= p.closed_m) & (clearance > 0.0))
+    closed &= ~(_near_robot(n, p.cell_m, p.closed_m) & (clearance > 0.0))
     return np.where(closed, np.inf, costs)
 
 
@@ -254,7 +267,7 @@ def _route(
     c = _half_cells(p)
     n = 2 * c + 1
     g, along = goals
-    gij = np.rint(g / p.cell_m).astype(np.int64) + c
+    gij = _cell_of(g, p)
     inside = np.all((gij >= 0) & (gij < n), axis=1)
     if not inside.any():
         return None
@@ -288,7 +301,6 @@ def way_cost(
     it; ``inf`` when it crosses a closed cell, leaves the grid or no longer ends at one of
     ``goals``."""
     p = params
-    c = _half_cells(p)
     n = len(costs)
     g, along = goals
     if len(way) == 0 or len(g) == 0:
@@ -298,7 +310,7 @@ def way_cost(
         return math.inf
     k = int(np.argmin(np.linalg.norm(way, axis=1)))
     pts = np.concatenate([np.zeros((1, 2)), way[k:]])
-    ij = np.rint(pts / p.cell_m).astype(np.int64) + c
+    ij = _cell_of(pts, p)
     if np.any((ij < 0) | (ij >= n)):
         return math.inf
     cc = costs[ij[:, 0], ij[:, 1]]
