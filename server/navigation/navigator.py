@@ -179,7 +179,13 @@ class Navigator:
         similarities, likelihood = self.runtime.observe(features)
         known = self.runtime.familiarity(similarities)
         summary = self.tracker.step(
-            self.last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known
+            self.last_action,
+            likelihood,
+            v=frame.v,
+            w=frame.w,
+            dt=dt,
+            familiarity=known,
+            spin=self.runtime.spin_similarity(similarities),
         )
         return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 

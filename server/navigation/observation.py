@@ -221,7 +221,15 @@ def perceive(
     if path is not None and path.estimate is not None:
         likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
     known = runtime.familiarity(similarities)
-    summary = tracker.step(last_action, likelihood, v=frame.v, w=frame.w, dt=dt, familiarity=known)
+    summary = tracker.step(
+        last_action,
+        likelihood,
+        v=frame.v,
+        w=frame.w,
+        dt=dt,
+        familiarity=known,
+        spin=runtime.spin_similarity(similarities),
+    )
     similarity = preferred(similarities, summary)
     decision = decide(
         runtime.graph,

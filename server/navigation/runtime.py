@@ -346,6 +346,13 @@ class TourRuntime:
         sims = self.index.query_models(features, n_states=self.graph.n_states)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
 
+    def spin_similarity(self, sims: Sequence[Similarity]) -> FloatArray:
+        """``(K, n_spin)`` the places' spin images' similarities under every appearance
+        model (the locations' images come first in canonical order), for the heading the
+        tracker keeps at each place (:meth:`Tracker.step`'s ``spin``)."""
+        n_spin = sum(len(loc.image_ids) for loc in self.graph.locations)
+        return np.stack([np.asarray(s.image[:n_spin], dtype=np.float64) for s in sims])
+
     def familiarity(self, sims: Sequence[Similarity]) -> float:
         """The frame's familiarity in [0, 1] for :meth:`Tracker.step`: its best error under
         the tour's model among the tour's error levels
