@@ -162,7 +162,13 @@ class QuestionService(TeachingObserver, NavigationObserver):
         state.last_timestamp = meta.timestamp
         known = rt.familiarity(sims)
         summary = state.tracker.step(
-            Action.explore(), likelihood, v=meta.v, w=meta.w, dt=dt, familiarity=known
+            Action.explore(),
+            likelihood,
+            v=meta.v,
+            w=meta.w,
+            dt=dt,
+            familiarity=known,
+            spin=rt.spin_similarity(sims),
         )
         index = {loc.id: k for k, loc in enumerate(graph.locations)}
         start = index.get(state.start) if state.start is not None else None
