@@ -177,15 +177,8 @@ class Navigator:
         """No task underway: the belief goes on; the robot stands."""
         features = extract(frame.image, self.params.features)
         similarities, likelihood = self.runtime.observe(features)
-        known = self.runtime.familiarity(similarities)
-        summary = self.tracker.step(
-            self.last_action,
-            likelihood,
-            v=frame.v,
-            w=frame.w,
-            dt=dt,
-            familiarity=known,
-            spin=self.runtime.spin_similarity(similarities),
+        summary = self.runtime.believe(
+            self.tracker, self.last_action, similarities, likelihood, v=frame.v, w=frame.w, dt=dt
         )
         return Step(features, preferred(similarities, summary), summary, None, STAND, None)
 

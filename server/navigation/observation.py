@@ -220,15 +220,8 @@ def perceive(
     similarities, likelihood = runtime.observe(features)
     if path is not None and path.estimate is not None:
         likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
-    known = runtime.familiarity(similarities)
-    summary = tracker.step(
-        last_action,
-        likelihood,
-        v=frame.v,
-        w=frame.w,
-        dt=dt,
-        familiarity=known,
-        spin=runtime.spin_similarity(similarities),
+    summary = runtime.believe(
+        tracker, last_action, similarities, likelihood, v=frame.v, w=frame.w, dt=dt
     )
     similarity = preferred(similarities, summary)
     decision = decide(

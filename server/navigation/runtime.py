@@ -13,8 +13,8 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.appearance import familiarity
-from server.belief.model import BeliefModel, build_model
-from server.belief.tracker import BeliefSummary, fine_likelihood
+from server.belief.model import Action, BeliefModel, build_model
+from server.belief.tracker import BeliefSummary, Tracker, fine_likelihood
 from server.domain import TourGraph
 from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
@@ -346,12 +346,28 @@ class TourRuntime:
         sims = self.index.query_models(features, n_states=self.graph.n_states)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
 
-    def spin_similarity(self, sims: Sequence[Similarity]) -> FloatArray:
-        """``(K, n_spin)`` the places' spin images' similarities under every appearance
-        model (the locations' images come first in canonical order), for the heading the
-        tracker keeps at each place (:meth:`Tracker.step`'s ``spin``)."""
+    def believe(
+        self,
+        tracker: Tracker,
+        action: Action,
+        sims: Sequence[Similarity],
+        likelihood: FloatArray,
+        *,
+        v: float,
+        w: float,
+        dt: float,
+    ) -> BeliefSummary:
+        """Step ``tracker`` (:meth:`Tracker.step`) with one frame: the action executed since
+        the last frame, the frame's similarities under every appearance model and the
+        ``(K, n_fine)`` likelihoods made of them (:meth:`observe`, maybe weighed since), the
+        odometry (m/s, rad/s) over ``dt`` s; with the frame's familiarity and the places' spin
+        images' similarities (the locations' images come first in canonical order), for the
+        heading the tracker keeps at each place."""
         n_spin = sum(len(loc.image_ids) for loc in self.graph.locations)
-        return np.stack([np.asarray(s.image[:n_spin], dtype=np.float64) for s in sims])
+        spin = np.stack([np.asarray(s.image[:n_spin], dtype=np.float64) for s in sims])
+        return tracker.step(
+            action, likelihood, v=v, w=w, dt=dt, familiarity=self.familiarity(sims), spin=spin
+        )
 
     def familiarity(self, sims: Sequence[Similarity]) -> float:
         """The frame's familiarity in [0, 1] for :meth:`Tracker.step`: its best error under

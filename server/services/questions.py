@@ -160,15 +160,8 @@ class QuestionService(TeachingObserver, NavigationObserver):
         last = state.last_timestamp
         dt = 0.0 if last is None else float(np.clip(meta.timestamp - last, 0.0, rt.params.max_dt_s))
         state.last_timestamp = meta.timestamp
-        known = rt.familiarity(sims)
-        summary = state.tracker.step(
-            Action.explore(),
-            likelihood,
-            v=meta.v,
-            w=meta.w,
-            dt=dt,
-            familiarity=known,
-            spin=rt.spin_similarity(sims),
+        summary = rt.believe(
+            state.tracker, Action.explore(), sims, likelihood, v=meta.v, w=meta.w, dt=dt
         )
         index = {loc.id: k for k, loc in enumerate(graph.locations)}
         start = index.get(state.start) if state.start is not None else None
