@@ -28,7 +28,6 @@ locations' images come first, each location's together).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,16 +45,23 @@ __all__ = ["HeadingParams", "SpinLayout", "consistency", "predict_heading", "upd
 class HeadingParams:
     """How the tracker keeps the way the robot faces at each place (module docstring).
 
-    * ``enabled`` (True): weigh a place's spin images by the heading its odometry allows;
-      False: 001 eq. 2 (the best spin image, whichever way it faces).
+    * ``enabled`` (False): weigh a place's spin images by the heading its odometry allows;
+      False: 001 eq. 2 (the best spin image, whichever way it faces). Off by default: it
+      gained on the shipped homes (docs/navigation.md section 3.1) but a place whose
+      distribution is flat keeps its full likelihood while one sharpened on a heading the
+      robot drifted from (walking off the spot, views change with parallax) is discounted, and
+      in the closed-loop fault test a robot in the hall came to believe it stood at the office
+      (1.0) and timed out; the likelihood must not favour places it knows nothing about.
     * ``spread_rad`` (0.12 rad): the least spread of the heading per frame (about the spacing
-      of the guide's spin images, 10 degrees, so mass reaches the neighbours).
+      of the guide's spin images, 10 degrees, so mass reaches the neighbours); at a place with
+      fewer spin images, at least half their spacing (with four, 90 degrees apart, a turn of a
+      few degrees a frame would otherwise never move the mass to the next one).
     * ``turn_noise`` (0.2): the spread grows by this fraction of the frame's turn.
     * ``forget`` (0.02): per frame, this share of the mass goes to every spin image alike.
     * ``least_weight`` (0.25): the least weight of a spin image the heading makes unlikely.
     """
 
-    enabled: bool = True
+    enabled: bool = False
     spread_rad: float = 0.12
     turn_noise: float = 0.2
     forget: float = 0.02
@@ -96,6 +102,13 @@ class SpinLayout:
     @property
     def n_spin(self) -> int:
         return len(self.location)
+
+    @property
+    def spacing(self) -> FloatArray:
+        """``(n_spin,)`` one turn over the number of spin images of each image's place (rad)."""
+        counts = np.bincount(self.location, minlength=int(self.location.max(initial=-1)) + 1)
+        out: FloatArray = 2 * np.pi / counts[self.location].astype(np.float64)
+        return out
 
     @classmethod
     def of(cls, graph: TourGraph) -> SpinLayout:
@@ -152,7 +165,8 @@ def predict_heading(
     q = np.asarray(q, dtype=np.float64)
     if layout.n_spin == 0:
         return q.copy()
-    sd = math.hypot(params.spread_rad, params.turn_noise * abs(turn))
+    least = np.maximum(params.spread_rad, layout.spacing[layout.src] / 2)
+    sd = np.hypot(least, params.turn_noise * abs(turn))
     kernel = np.exp(-0.5 * (_wrap(layout.delta - turn) / sd) ** 2)
     norm = np.bincount(layout.src, weights=kernel, minlength=layout.n_spin)
     moved = np.bincount(

@@ -303,6 +303,8 @@ class TrackerMemory:
     * ``appearance``: ``(K,)`` log posterior over the appearance models (empty: none yet).
     * ``familiar``: running mean of the frames' familiarity (NaN: none yet).
     * ``evidence_fast`` / ``evidence_slow``: the EMAs of the evidence ratio (< 0: no frame yet).
+    * ``heading``: ``(n_spin,)`` which spin image the robot would face at each place
+      (:mod:`server.belief.heading`; empty: nothing known, or a tour whose places changed).
 
     :meth:`to_dict` / :meth:`from_dict` give it a JSON-safe form (NaN as ``None``).
     """
@@ -311,6 +313,7 @@ class TrackerMemory:
     familiar: float = math.nan
     evidence_fast: float = -1.0
     evidence_slow: float = -1.0
+    heading: tuple[float, ...] = ()
 
     def to_dict(self) -> dict[str, object]:
         """Plain floats and lists, NaN as ``None`` (strict JSON has no NaN)."""
@@ -323,6 +326,7 @@ class TrackerMemory:
             "familiar": num(self.familiar),
             "evidence_fast": num(self.evidence_fast),
             "evidence_slow": num(self.evidence_slow),
+            "heading": [float(x) for x in self.heading],
         }
 
     @classmethod
@@ -343,11 +347,18 @@ class TrackerMemory:
             appearance = tuple(num(x, math.nan) for x in raw)
             if not all(math.isfinite(x) for x in appearance):
                 raise BeliefError("tracker memory: appearance must be finite")
+            raw = data.get("heading") or []
+            if not isinstance(raw, list):
+                raise BeliefError("tracker memory: heading must be a list")
+            heading = tuple(num(x, math.nan) for x in raw)
+            if not all(math.isfinite(x) and x >= 0 for x in heading):
+                raise BeliefError("tracker memory: heading must be finite and >= 0")
             return cls(
                 appearance=appearance,
                 familiar=num(data.get("familiar"), math.nan),
                 evidence_fast=num(data.get("evidence_fast"), -1.0),
                 evidence_slow=num(data.get("evidence_slow"), -1.0),
+                heading=heading,
             )
         except AttributeError:
             raise BeliefError("tracker memory must be a mapping") from None
@@ -459,6 +470,7 @@ class Tracker:
             familiar=self._familiar,
             evidence_fast=self._fast,
             evidence_slow=self._slow,
+            heading=tuple(float(x) for x in self._heading),
         )
 
     def set_belief(self, belief: npt.ArrayLike, memory: TrackerMemory | None = None) -> None:
@@ -477,6 +489,8 @@ class Tracker:
             self._appearance = np.asarray(memory.appearance, np.float64)
             self._familiar = float(memory.familiar)
             self._fast, self._slow = float(memory.evidence_fast), float(memory.evidence_slow)
+            if len(memory.heading) == self._spins.n_spin:  # else the places changed: unknown
+                self._heading = np.asarray(memory.heading, np.float64)
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)

@@ -27,6 +27,7 @@ from server.domain import TourGraph
 
 N_SPIN = 36  # the guide's spin: about 10 degrees apart
 N_PLACES_SPIN = 2 * N_SPIN + 5  # places_graph()'s spin images
+ON = TrackerParams(heading=HeadingParams(enabled=True))  # off by default
 
 
 def places_graph(counts: tuple[int, ...] = (N_SPIN, N_SPIN, 0, 5)) -> TourGraph:
@@ -44,9 +45,9 @@ def naive_predict(
     q: np.ndarray, headings: list[np.ndarray], turn: float, p: HeadingParams
 ) -> np.ndarray:
     out, start = [], 0
-    sd = math.hypot(p.spread_rad, p.turn_noise * abs(turn))
     for h in headings:
         n = len(h)
+        sd = math.hypot(max(p.spread_rad, math.pi / n), p.turn_noise * abs(turn))
         part = np.zeros(n)
         for i in range(n):
             k = [math.exp(-0.5 * (wrap(h[j] - h[i] - turn) / sd) ** 2) for j in range(n)]
@@ -148,7 +149,7 @@ def test_a_spin_at_the_place_keeps_its_likelihood_and_a_look_alike_loses_it() ->
     alike[np.arange(frames), rng.integers(0, N_SPIN, frames)] = 0.9  # the best jumps about
     beliefs = {}
     for name, spin in (("heading", True), ("eq2", False)):
-        tracker = Tracker(model)
+        tracker = Tracker(model, ON)
         for t in range(frames):
             image = np.concatenate([here[t], alike[t], np.full(graph.n_images - 2 * N_SPIN, 0.05)])
             lik = fine_likelihood(image, graph)
@@ -165,7 +166,7 @@ def test_off_or_without_spin_similarities_the_tracker_is_as_before() -> None:
     model = BeliefModel(graph)
     rng = np.random.default_rng(4)
     off = Tracker(model, TrackerParams(heading=HeadingParams(enabled=False)))
-    plain, given = Tracker(model), Tracker(model)
+    plain, given = Tracker(model, ON), Tracker(model, ON)
     for _ in range(10):
         image = rng.random(graph.n_images)
         lik = fine_likelihood(image, graph)
@@ -178,7 +179,7 @@ def test_off_or_without_spin_similarities_the_tracker_is_as_before() -> None:
 
 def test_spin_similarities_of_the_wrong_shape_or_value_are_refused() -> None:
     graph = places_graph()
-    tracker = Tracker(BeliefModel(graph))
+    tracker = Tracker(BeliefModel(graph), ON)
     lik = fine_likelihood(np.full(graph.n_images, 0.5), graph)
     before = tracker.belief
     with pytest.raises(InvalidLikelihoodError, match="spin has shape"):
