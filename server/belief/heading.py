@@ -84,17 +84,20 @@ class SpinLayout:
     """The spin images of a tour's places, for the arrays of this module.
 
     * ``location``: ``(n_spin,)`` the location of each spin image; ``heading``: ``(n_spin,)``
-      its taught heading (rad).
+      its taught heading (rad); ``size``: ``(n_spin,)`` how many spin images its place has.
     * ``starts``: ``(n_places,)`` where each location that has spin images starts;
-      ``places``: ``(n_places,)`` which locations those are.
+      ``places``: ``(n_places,)`` which locations those are; ``rank``: ``(n_spin,)`` each
+      spin image's place among them.
     * ``src``, ``dst``: ``(n_pairs,)`` every ordered pair of spin images of one place;
       ``delta``: ``(n_pairs,)`` the turn from ``src``'s heading to ``dst``'s, in [-pi, pi).
     """
 
     location: IntArray
     heading: FloatArray
+    size: IntArray
     starts: IntArray
     places: IntArray
+    rank: IntArray
     src: IntArray
     dst: IntArray
     delta: FloatArray
@@ -106,8 +109,7 @@ class SpinLayout:
     @property
     def spacing(self) -> FloatArray:
         """``(n_spin,)`` one turn over the number of spin images of each image's place (rad)."""
-        counts = np.bincount(self.location, minlength=int(self.location.max(initial=-1)) + 1)
-        out: FloatArray = 2 * np.pi / counts[self.location].astype(np.float64)
+        out: FloatArray = 2 * np.pi / self.size
         return out
 
     @classmethod
@@ -116,9 +118,9 @@ class SpinLayout:
         n_spin = int(counts.sum())
         location = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
         first = np.cumsum(counts) - counts
+        size = counts[location]
         index = np.arange(n_spin, dtype=np.int64) - first[location]
-        even = 2 * np.pi * index / np.maximum(counts[location], 1)
-        heading = even.astype(np.float64)
+        heading = 2 * np.pi * index / size
         if graph.image_pose is not None and n_spin:
             taught = np.asarray(graph.image_pose, dtype=np.float64)[:n_spin, 2]
             for k in np.flatnonzero(counts):  # per place: its own poses when all are there
@@ -126,15 +128,18 @@ class SpinLayout:
                 if np.all(np.isfinite(taught[span])):
                     heading[span] = taught[span]
         has = counts > 0
-        reps = counts[location]  # every spin image pairs with each image of its place
-        src = np.repeat(np.arange(n_spin, dtype=np.int64), reps)
-        within = np.arange(len(src), dtype=np.int64) - np.repeat(np.cumsum(reps) - reps, reps)
+        places = np.flatnonzero(has).astype(np.int64)
+        # every spin image pairs with each image of its place
+        src = np.repeat(np.arange(n_spin, dtype=np.int64), size)
+        within = np.arange(len(src), dtype=np.int64) - np.repeat(np.cumsum(size) - size, size)
         dst = first[location][src] + within
         return cls(
             location=location,
             heading=heading,
+            size=size,
             starts=first[has].astype(np.int64),
-            places=np.flatnonzero(has).astype(np.int64),
+            places=places,
+            rank=np.searchsorted(places, location).astype(np.int64),
             src=src,
             dst=dst,
             delta=_wrap(heading[dst] - heading[src]),
@@ -142,8 +147,8 @@ class SpinLayout:
 
     def uniform(self) -> FloatArray:
         """``(n_spin,)`` nothing known: each place's mass spread evenly over its images."""
-        counts = np.bincount(self.location, minlength=int(self.location.max(initial=-1)) + 1)
-        return 1.0 / counts[self.location].astype(np.float64)
+        out: FloatArray = 1.0 / self.size
+        return out
 
     def per_place(self, values: FloatArray, ufunc: np.ufunc) -> FloatArray:
         """``(n_places,)`` ``ufunc`` reduced over each place's images (``np.add``, ...)."""
@@ -152,8 +157,7 @@ class SpinLayout:
 
     def spread(self, per_place: FloatArray) -> FloatArray:
         """``(..., n_spin)`` a per-place value given to each of the place's images."""
-        rank = np.searchsorted(self.places, self.location)
-        return per_place[..., rank]
+        return per_place[..., self.rank]
 
 
 def predict_heading(

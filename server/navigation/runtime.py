@@ -78,6 +78,7 @@ class TourRuntime:
         # canonical indices of each location's spin images (they come first, in order)
         counts = [len(loc.image_ids) for loc in graph.locations]
         firsts = np.cumsum([0, *counts])
+        self.n_spin = int(firsts[-1])  # spin images in all: the first of canonical order
         self.spin_images = tuple(
             np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
         )
@@ -363,8 +364,7 @@ class TourRuntime:
         odometry (m/s, rad/s) over ``dt`` s; with the frame's familiarity and the places' spin
         images' similarities (the locations' images come first in canonical order), for the
         heading the tracker keeps at each place."""
-        n_spin = sum(len(loc.image_ids) for loc in self.graph.locations)
-        spin = np.stack([np.asarray(s.image[:n_spin], dtype=np.float64) for s in sims])
+        spin = np.stack([np.asarray(s.image[: self.n_spin], dtype=np.float64) for s in sims])
         return tracker.step(
             action, likelihood, v=v, w=w, dt=dt, familiarity=self.familiarity(sims), spin=spin
         )
