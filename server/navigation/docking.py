@@ -550,10 +550,20 @@ class Docking:
         """:meth:`confirm` while the path tracker is locked on the edge the robot came in by:
         it knows where the robot is on the way in; it follows the path to its end and faces
         the way taught; the robot is there when the tracker says so, and only then (a
-        tracker that lost the path sends it on along it first)."""
+        tracker that lost the path sends it on along it first). Lost short of the end while the
+        policy holds the goal (nothing else moves the robot), the robot turns on the spot: the
+        belief and the tracker disagree, and fresh views settle it (the tracker locks on again,
+        or the belief leaves the goal and the policy sends the robot on); standing, it waited
+        for the unstick's 20 s in the closed-loop fault test."""
         est = obs.path
-        if est is None or not est.locked or est.edge != edge:
+        if est is None or est.edge != edge:
             return None, False
+        if not est.locked:
+            if obs.decision.action.kind != ActionKind.DO_NOTHING:
+                return None, False
+            look = Command(*rotate_command(self.p.motion), Action.do_nothing(), None, "dock")
+            why = "the path tracker lost the way in short of the goal: looking round"
+            return Proposal(look, why), False
         if self._tracked_there(obs, edge):
             return self._check_spot(obs, est)
         command, why = track_command(self.rt, obs, est)
