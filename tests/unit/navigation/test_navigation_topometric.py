@@ -232,6 +232,24 @@ def test_at_the_tracked_end_of_the_path_into_the_goal_it_has_arrived_facing_any_
     assert not arrived and proposal is not None and proposal.command.v > 0
 
 
+def test_a_tracker_lost_short_of_the_goal_the_policy_holds_turns_the_robot_to_look() -> None:
+    """The belief holds the goal (DoNothing) while the tracker on the edge in, lost, puts the
+    robot metres short of its end: no arrival, and the robot turns on the spot for fresh views
+    (it stood still, nothing else moving it, until the unstick gave up waiting). While the
+    policy moves the robot itself, docking leaves it to the policy."""
+    rt = runtime()
+    docking = Docking(rt, B)
+    docking.approach.done, docking.approach.edge = True, 0
+    lost = estimate(rt, along=0.2, locked=False, since_fix_s=5.0)
+    held = observation(rt, action=Action.do_nothing(), goal=B, at_goal=True)
+    proposal, arrived = docking.confirm(replace(held, path=lost), False)
+    assert not arrived and proposal is not None
+    assert proposal.command.v == 0 and proposal.command.w != 0
+    assert proposal.command.action.kind == ActionKind.DO_NOTHING
+    moving = observation(rt, action=Action.navigate(0), active_edge=0, goal=B, at_goal=True)
+    assert docking.confirm(replace(moving, path=lost), False) == (None, False)
+
+
 def test_held_mass_equals_the_sum_over_the_edges_states_naively() -> None:
     rt = runtime()
     g = rt.graph
