@@ -3,16 +3,14 @@
 For each simulated home, each place and ``--headings`` headings around it, the view taught at
 the place is compared with views rendered ``--offsets`` metres along the heading (negative:
 behind the spot, the taught view looks larger: docking should read "short"; positive: past
-it, "past"; 0: on it, "there"). Four ways of reading the scale, on the same frames, named
+it, "past"; 0: on it, "there"). Three ways of reading the scale, on the same frames, named
 as ``NavigationParams.dock_taught_zooms``:
 
 * ``off``: :func:`server.vision.homing.homing_scale_zoomed` over the frame's four zooms (the
   default);
 * ``out``: :func:`server.vision.homing.homing_scale_taught_zoomed`, the frame zoomed in and
   the taught image zoomed in for the frame zoomed out;
-* ``both``: the same with every zoom on the taught image;
-* ``both_wide``: ``both`` with the frame's corners of a larger budget against the taught levels
-  (``NavigationParams.dock_wide_corners``, :func:`server.vision.homing.wide_corners`).
+* ``both``: the same with every zoom on the taught image.
 
 Per offset: views, mean inliers, the share with at least ``dock_min_inliers`` (docking acts on
 them) and the share whose verdict (``scale_verdict`` with ``dock_scale_tol``) is right.
@@ -30,7 +28,7 @@ import numpy as np
 
 from server.bench.common import write_json
 
-METHODS = ("off", "out", "both", "both_wide")
+METHODS = ("off", "out", "both")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -86,7 +84,6 @@ def run(args: argparse.Namespace) -> int:
         homing_scale_taught_zoomed,
         homing_scale_zoomed,
         taught_zoom_levels,
-        wide_corners,
         zoom_levels,
     )
 
@@ -116,9 +113,6 @@ def run(args: argparse.Namespace) -> int:
                                 ff, outs, frame_levels=zoom_levels(frame, ff, zooms, fp, "in")
                             ),
                             "both": homing_scale_taught_zoomed(ff, levels),
-                            "both_wide": homing_scale_taught_zoomed(
-                                ff, levels, wide=wide_corners(frame, zooms, fp)
-                            ),
                         }
                         row: dict[str, Any] = {"plan": plan.name, "place": place.name}
                         row.update({"heading": k, "offset_m": d})
@@ -144,10 +138,7 @@ def run(args: argparse.Namespace) -> int:
             for m in METHODS
         ]
         print(f"{key:>7s} {cell['views']:5d}  " + "  ".join(parts))
-    print(
-        "(methods named as NavigationParams.dock_taught_zooms; off = the frame's four zooms; "
-        "both_wide = both with dock_wide_corners)"
-    )
+    print("(methods named as NavigationParams.dock_taught_zooms; off = the frame's four zooms)")
     write_json(
         args.json,
         {

@@ -32,7 +32,6 @@ from server.vision.homing import (
     homing_scale,
     homing_scale_taught_zoomed,
     homing_scale_zoomed,
-    wide_corners,
     zoom_levels,
 )
 from server.vision.index import Similarity
@@ -426,21 +425,12 @@ def match_views(
             made[which] = zoom_levels(image, features, p.dock_zooms, p.features, which)
         return made[which]
 
-    wide: list[ImageFeatures] = []
-
-    def frame_wide() -> ImageFeatures | None:
-        if not p.dock_wide_corners:
-            return None
-        if not wide:
-            wide.append(wide_corners(image, p.dock_zooms, p.features))
-        return wide[0]
-
     def zoomed(i: int) -> ScaleResult | None:
         levels = runtime.taught_levels(i) if p.dock_taught_zooms in ("out", "both") else None
         if levels is None:
             return homing_scale_zoomed(frame_levels("both"), taught[i])
         own = frame_levels("in") if p.dock_taught_zooms == "out" else ()
-        return homing_scale_taught_zoomed(features, levels, frame_levels=own, wide=frame_wide())
+        return homing_scale_taught_zoomed(features, levels, frame_levels=own)
 
     zoomed_fits = LazyFits(request.zoomed, zoomed)
 
@@ -448,7 +438,7 @@ def match_views(
         levels = runtime.taught_levels(i)
         if levels is None:
             return zoomed_fits[i]  # the frame's zooms: the same fit, made once
-        return homing_scale_taught_zoomed(features, levels, wide=frame_wide())
+        return homing_scale_taught_zoomed(features, levels)
 
     return Views(
         offsets=LazyFits(request.offsets, lambda i: homing_offset(features, taught[i])),

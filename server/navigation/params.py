@@ -152,14 +152,6 @@ class NavigationParams:
       m; the sofa trial of the two-room test home ends 0.95 m off against 0.21 m; single
       views 0.8 m behind the spot read "short" less often, 39 % right against 55 %), since
       the verdicts are its own.
-    * ``dock_wide_corners`` (False): with taught zooms, the frame's corners read against a
-      taught level come from one more extraction of the frame with a budget of ``n_features``
-      times the largest zoom squared (:func:`server.vision.homing.wide_corners`), so the
-      frame's view zoomed in keeps up to ``n_features`` corners, as the frame zoomed in does,
-      instead of the ``n_features / z ** 2`` of its own that lie there. Measured 2026-11-28
-      with ``"both"``: single views 0.8 m behind the spot 50 % right against 39 % without it;
-      closed loop (apartment + studio, the 120 trials above) 88 arrived against 90 without it,
-      at 0.5-0.7 ms more CPU per frame. Off.
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -237,7 +229,6 @@ class NavigationParams:
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
     dock_taught_zooms: Literal["off", "out", "both", "look"] = "look"
-    dock_wide_corners: bool = False
     dock_second_axis: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0

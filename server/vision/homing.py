@@ -502,22 +502,6 @@ def taught_zoom_levels(
     return tuple(levels)
 
 
-def wide_corners(
-    image: npt.NDArray[np.uint8], zooms: Sequence[float], params: FeatureParams
-) -> ImageFeatures:
-    """The frame's corners and descriptors with a budget of ``n_features * max(zooms) ** 2``
-    (:func:`extract_corners`), for :func:`homing_scale_taught_zoomed`'s taught levels.
-
-    The frame zoomed in by ``z`` shows its central ``1 / z`` and finds up to ``n_features``
-    corners there; of the frame's own ``n_features`` only about ``n_features / z ** 2`` lie
-    there. With the larger budget the zoomed view keeps up to ``n_features`` of them, as
-    the zoomed frame would. The detector keeps corners strongest first, each one farther than
-    ``min_distance`` from those before it, so the first ``n_features`` are the frame's own
-    corners (:func:`~server.vision.features.extract` gives the same)."""
-    budget = int(np.ceil(params.n_features * max(zooms, default=1.0) ** 2))
-    return extract_corners(image, replace(params, n_features=max(budget, params.n_features)))
-
-
 def _as_frame_zoom(
     current: ImageFeatures, target: ImageFeatures, factor: float, params: FeatureParams
 ) -> tuple[ImageFeatures, ImageFeatures]:
@@ -549,16 +533,13 @@ def homing_scale_taught_zoomed(
     levels: Sequence[ZoomLevel],
     *,
     frame_levels: Sequence[ZoomLevel] = (),
-    wide: ImageFeatures | None = None,
     params: HomingParams = HomingParams(),
     fit: ScaleParams = ScaleParams(),
 ) -> ScaleResult | None:
     """:func:`homing_scale_zoomed` with some or all of the zooms on the taught side: ``levels``
     from :func:`taught_zoom_levels` (the first, factor 1, is the taught image's own features),
     ``current`` the frame's own features, and ``frame_levels`` (:func:`zoom_levels`) the frame
-    zooms to use instead of the taught level of the same factor. ``wide``: the frame's corners
-    with a larger budget (:func:`wide_corners`), read against the taught levels instead of
-    ``current``'s, so that a zoomed-in view keeps up to ``n_features`` corners.
+    zooms to use instead of the taught level of the same factor.
 
     Docking uses it with ``NavigationParams.dock_taught_zooms``: by default (``"look"``) only
     to look for a view; for its verdicts too (``"both"``) it saves as much CPU but docks less
@@ -593,6 +574,5 @@ def homing_scale_taught_zoomed(
         elif factor in own:
             pairs.append((own[factor], target))
         else:
-            frame = current if wide is None else wide
-            pairs.append(_as_frame_zoom(frame, taught[factor], factor, params.features))
+            pairs.append(_as_frame_zoom(current, taught[factor], factor, params.features))
     return _best_zoom(pairs, order, params, fit)

@@ -26,8 +26,7 @@ def test_summary_counts_only_views_docking_acts_on() -> None:
             "offset_m": d,
             "off": fit,
             "out": dict(fit, inliers=inl + 10),
-            "both": dict(fit, verdict=0),
-            "both_wide": dict(fit, inliers=inl - 1),
+            "both": dict(fit, verdict=0, inliers=inl - 1),
         }
 
     rows = [row(-0.4, 20, 1), row(-0.4, 5, 1), row(-0.4, 30, 0), row(0.4, 12, -1)]
@@ -38,7 +37,7 @@ def test_summary_counts_only_views_docking_acts_on() -> None:
     assert behind["off"]["right_share"] == pytest.approx(1 / 3)  # the 5-inlier view: no say
     assert behind["out"]["right_share"] == pytest.approx(2 / 3)
     assert behind["both"]["right_share"] == 0.0
-    assert behind["both_wide"]["acted_share"] == pytest.approx(2 / 3)  # 19 and 29 inliers
+    assert behind["both"]["acted_share"] == pytest.approx(2 / 3)  # 19 and 29 inliers
     assert table["+0.40"]["off"]["right_share"] == 1.0
     assert set(METHODS) <= set(behind)
 

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -20,7 +19,6 @@ from server.vision.homing import (
     homing_scale_taught_zoomed,
     homing_scale_zoomed,
     taught_zoom_levels,
-    wide_corners,
     zoom_image,
     zoom_levels,
 )
@@ -153,40 +151,6 @@ def test_with_every_level_on_the_frame_s_side_it_is_the_frame_zoomed_fit() -> No
     taught = taught_zoom_levels(target_img, target, ZOOMS, FP)
     res = homing_scale_taught_zoomed(feats, taught, frame_levels=frame_levels)
     assert res == homing_scale_zoomed(frame_levels, target)
-
-
-@pytest.mark.parametrize("seed", [26, 27, 28])
-def test_wide_corners_begin_with_the_frame_s_own(seed: int) -> None:
-    """The larger budget adds corners after the frame's own: its first ``n_features``
-    keypoints and descriptors are :func:`extract`'s, and the budget is ``n_features`` times
-    the largest zoom squared."""
-    img = scene(seed)
-    fp = FeatureParams(n_features=40)  # a budget the scene fills (it has 60-70 corners)
-    feats = extract(img, fp)
-    wide = wide_corners(img, ZOOMS, fp)
-    k = feats.n_keypoints
-    assert k == fp.n_features
-    assert np.array_equal(wide.keypoints[:k], feats.keypoints)
-    assert np.array_equal(wide.descriptors[:k], feats.descriptors)
-    assert k < wide.n_keypoints <= int(np.ceil(fp.n_features * max(ZOOMS) ** 2))
-    # no zoom: the frame's own corners, with extract_corners' empty signature
-    assert wide_corners(img, (), fp) == replace(feats, signature=np.zeros(0, np.float32))
-
-
-def test_wide_corners_give_a_zoomed_in_taught_level_more_of_the_frame() -> None:
-    """A target taken 1.69 times nearer: against the taught levels, the frame's wide corners
-    find at least as many inliers as its own, and the fit reads the scale within 3 %; with
-    ``wide`` the frame's own corners the fit is the one without it (naive reference)."""
-    img = scene(29)
-    feats = extract(img)
-    target_img = zoom_image(img, 1.69)
-    levels = taught_zoom_levels(target_img, extract(target_img), ZOOMS, FP)
-    own = homing_scale_taught_zoomed(feats, levels)
-    wide = homing_scale_taught_zoomed(feats, levels, wide=wide_corners(img, ZOOMS, FP))
-    assert own is not None and wide is not None
-    assert wide.inliers >= own.inliers
-    assert wide.scale == pytest.approx(1.69, rel=0.03)
-    assert homing_scale_taught_zoomed(feats, levels, wide=feats) == own
 
 
 def test_the_first_taught_level_must_be_the_taught_image() -> None:
