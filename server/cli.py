@@ -78,6 +78,11 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
         "server.bench.dock_views",
         "docking's scale fit on single views off the taught spot in the simulated homes",
     ),
+    (
+        ("bench", "carried"),
+        "server.bench.carried",
+        "a robot carried off a place of a three-place tour, sent to another (the fault test's)",
+    ),
     (("bench", "load"), "server.bench.load", "many robots at once against one server"),
     (("bench", "upload"), "server.bench.upload", "teaching upload rate of the robot client"),
     (
