@@ -96,7 +96,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Arrivals, wrong arrivals and the median robot time of the arrived trials (NaN: none)."""
+    """``arrived``: trials that arrived at the goal (``success``); ``wrong``: that said
+    "arrived" at another place; the median robot time of those at the goal (NaN: none)."""
     arrived = [r for r in rows if r["success"]]
     return {
         "trials": len(rows),
@@ -193,8 +194,8 @@ def run(args: argparse.Namespace) -> int:
         )
     total = summarise(rows)
     print(
-        f"arrived {total['arrived']}/{total['trials']}, wrong {total['wrong']}, "
-        f"median time of the arrived {total['median_time_s']:.1f} s (robot)"
+        f"arrived at the goal {total['arrived']}/{total['trials']}, at a wrong place "
+        f"{total['wrong']}, median time of those at the goal {total['median_time_s']:.1f} s (robot)"
     )
     write_json(
         args.json,
