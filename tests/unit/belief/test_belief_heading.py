@@ -69,7 +69,7 @@ def naive_consistency(
         r = [max(p.least_weight, x / qq.max()) for x in qq]
         out.append(max(a * b for a, b in zip(r, ss, strict=True)) / ss.max())
         start += n
-    return np.array(out)
+    return np.array(out) / max(out)
 
 
 def random_q(layout: SpinLayout, rng: np.random.Generator) -> np.ndarray:
@@ -116,6 +116,7 @@ def test_each_places_distribution_sums_to_one_and_stays_positive(seed: int) -> N
         assert np.all(q > 0)
         factor = consistency(q, rng.random(layout.n_spin), layout, HeadingParams())
         assert np.all((factor >= HeadingParams().least_weight - 1e-12) & (factor <= 1 + 1e-12))
+        assert factor.max() == pytest.approx(1.0)  # the most consistent place: eq. 2 as it was
 
 
 def test_taught_headings_are_used_when_every_spin_image_of_the_place_has_one() -> None:
