@@ -378,15 +378,20 @@ class Docking:
 
     def _placing(self, obs: Observation) -> bool:
         """Whether place docking goes on (or starts) this frame: off when it is switched off,
-        done, given up, not needed (the robot came in along an edge) or turned away."""
-        pl, p = self.placing, self.p
+        done, given up, not needed (the robot came in along an edge) or turned away. A goal
+        whose approach is waived (no round trip to come in by: a place with no taught edge out
+        of it, as the last place of a tour) is docked on too unless the robot came in along an
+        edge: without, the belief alone said "arrived" (a robot carried into the corridor
+        beside the hall "arrived" at a dead-end office 5.2 m away, `bench carried`)."""
+        pl, p, a = self.placing, self.p, self.approach
         if not p.place_dock or pl.phase in ("done", "off"):
             return False
-        if self.approach.done and pl.phase == "idle":
+        came_in = a.done and (self.needs_approach or a.edge is not None)
+        if came_in and pl.phase == "idle":
             return False  # came in along an edge: docking proper (and its second axis) decides
         if pl.phase != "idle":
             return not self._turned_away(obs)
-        if not (self.needs_approach and obs.at_goal):
+        if not obs.at_goal:
             return False
         if (obs.goal_ambiguity or 0.0) > p.place_dock_ambiguity:
             pl.phase = "off"  # a look-alike place: come in along an edge

@@ -8,7 +8,7 @@ import math
 from dataclasses import replace
 
 import pytest
-from navigation_testkit import B, observation, runtime
+from navigation_testkit import B, D, observation, runtime
 
 from server.navigation.docking import Docking
 from server.navigation.observation import Observation, ViewRequest, Views
@@ -64,3 +64,21 @@ def test_looking_by_the_depth_asks_for_no_spin_view_and_reads_none() -> None:
     assert docking.wants(obs) == ViewRequest()
     proposal = docking.place(replace(obs, views=Views()))
     assert proposal is not None and docking.placing.phase == "look"
+
+
+def test_a_goal_with_no_round_trip_is_docked_on_before_it_counts_as_arrived() -> None:
+    """D has no taught edge: its approach is waived (no round trip to come in by). The belief
+    at D no longer says "arrived" alone: place docking looks for D's views first (a robot
+    carried into a corridor "arrived" at a dead-end office 5.2 m away on the belief alone).
+    Had the robot come in along an edge, docking along that edge would decide instead."""
+    rt = runtime()
+    docking = Docking(rt, D)
+    assert not docking.needs_approach and docking.approach.done
+    fits = {int(i): LINED_UP for i in rt.spin_images[D]}
+    obs = observation(rt, goal=D, at_goal=True, views=Views(zoomed=fits, taught_zoomed=fits))
+    proposal = docking.place(obs)
+    assert proposal is not None and docking.placing.phase != "idle"
+    assert docking.confirm(obs, placing=True) == (None, False)
+    came_in = Docking(rt, D)
+    came_in.approach.edge = 0  # (an edge of the synthetic tour; D's own would do the same)
+    assert came_in.place(obs) is None and came_in.placing.phase == "idle"
