@@ -382,11 +382,13 @@ class Docking:
         whose approach is waived (no round trip to come in by: a place with no taught edge out
         of it, as the last place of a tour) is docked on too unless the robot came in along an
         edge: without, the belief alone said "arrived" (a robot carried into the corridor
-        beside the hall "arrived" at a dead-end office 5.2 m away, `bench carried`)."""
+        beside the hall "arrived" at a dead-end office 5.2 m away, `bench carried`). With the
+        approach rule off (``approach_s`` 0) the belief's word stands, as it did."""
         pl, p, a = self.placing, self.p, self.approach
         if not p.place_dock or pl.phase in ("done", "off"):
             return False
-        came_in = a.done and (self.needs_approach or a.edge is not None)
+        waived = p.approach_s > 0 and not self.needs_approach  # no round trip to come in by
+        came_in = a.done and (self.needs_approach or a.edge is not None or not waived)
         if came_in and pl.phase == "idle":
             return False  # came in along an edge: docking proper (and its second axis) decides
         if pl.phase != "idle":
