@@ -47,11 +47,10 @@ class HeadingParams:
 
     * ``enabled`` (False): weigh a place's spin images by the heading its odometry allows;
       False: 001 eq. 2 (the best spin image, whichever way it faces). Off by default: it
-      gained on the shipped homes (docs/navigation.md section 3.1) but a place whose
-      distribution is flat keeps its full likelihood while one sharpened on a heading the
-      robot drifted from (walking off the spot, views change with parallax) is discounted, and
-      in the closed-loop fault test a robot in the hall came to believe it stood at the office
-      (1.0) and timed out; the likelihood must not favour places it knows nothing about.
+      gained on the shipped homes (163 against 151 of 216, docs/navigation.md section 3.1) but
+      lost where a robot is carried off a place of a short tour into a corridor that looks
+      alike both ways (``teachrepeat bench carried``: 3 of 6 against 5 of 7): the belief
+      left the place for a look-alike edge the robot faced away from.
     * ``spread_rad`` (0.12 rad): the least spread of the heading per frame (about the spacing
       of the guide's spin images, 10 degrees, so mass reaches the neighbours); at a place with
       fewer spin images, at least half their spacing (with four, 90 degrees apart, a turn of a
@@ -190,8 +189,8 @@ def consistency(
     against the edges' images: weighed alone, a robot carried 0.8 m off a place into a
     corridor that looks alike both ways (``teachrepeat bench carried``), whose views the place's
     spin images follow only in part, lost the place to look-alike images of an edge and
-    followed that edge the wrong way (2 of 7 arrived, against 4 of 7 weighed against the
-    places; seed 700 of the shipped homes 57 of 72 either way).
+    followed that edge the wrong way (2 of 7 arrived; weighed against the places 3 of 6, the
+    seventh not run; seed 700 of the shipped homes 57 of 72 either way).
 
     Args:
         q: ``(n_spin,)`` the predicted heading distributions (:func:`predict_heading`).
