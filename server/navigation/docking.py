@@ -382,7 +382,7 @@ class Docking:
         whose approach is waived (no round trip to come in by: a place with no taught edge out
         of it, as the last place of a tour) is docked on too unless the robot came in along an
         edge: without, the belief alone said "arrived" (a robot carried into the corridor
-        beside the hall "arrived" at a dead-end office 5.2 m away, `bench carried`). With the
+        beside the hall "arrived" at a dead-end office 5.2 m away after a server restart). With the
         approach rule off (``approach_s`` 0) the belief's word stands, as it did."""
         pl, p, a = self.placing, self.p, self.approach
         if not p.place_dock or pl.phase in ("done", "off"):
