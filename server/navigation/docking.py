@@ -255,6 +255,8 @@ class Docking:
         self.p = runtime.params
         self.goal = goal
         self.needs_approach = self.p.approach_s > 0 and runtime.approachable[goal]
+        # the approach rule is on but the goal has no round trip to come in by
+        self.waived = self.p.approach_s > 0 and not runtime.approachable[goal]
         self.approach = Approach(done=not self.needs_approach)
         self.placing = PlaceDocking()
         self.spot = SpotFix()  # the goal's taught spot by the depth profiles
@@ -387,8 +389,7 @@ class Docking:
         pl, p, a = self.placing, self.p, self.approach
         if not p.place_dock or pl.phase in ("done", "off"):
             return False
-        waived = p.approach_s > 0 and not self.needs_approach  # no round trip to come in by
-        came_in = a.done and (self.needs_approach or a.edge is not None or not waived)
+        came_in = a.done and (a.edge is not None or not self.waived)
         if came_in and pl.phase == "idle":
             return False  # came in along an edge: docking proper (and its second axis) decides
         if pl.phase != "idle":
