@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from server.bench.common import write_json
+from server.bench.navigate import navigation_env
 from server.tuning import add_set_argument
 
 DEFAULT_SCENARIO = Path(__file__).with_name("carried.json")
@@ -151,15 +152,13 @@ def check(args: argparse.Namespace) -> tuple[Scenario | None, str | None]:
     """The scenario, or what is wrong with the arguments (a message saying what to fix)."""
     from robot_client.sim import load_plan
     from robot_client.sim.floorplan import PlanError
-    from server.navigation import NavigationParams
-    from server.tuning import tuned
 
     if args.seeds < 1:
         return None, f"--seeds must be at least 1 (got {args.seeds})"
     if args.max_steps < 1:
         return None, f"--max-steps must be at least 1 (got {args.max_steps})"
     try:
-        tuned(NavigationParams(), dict(args.settings))
+        navigation_env(args.settings)
     except ValueError as exc:
         return None, f"--set: {exc}"
     try:
@@ -181,8 +180,7 @@ def run(args: argparse.Namespace) -> int:
     if scenario is None:
         print(f"teachrepeat bench carried: {problem}")
         return 2
-    overrides = dict(args.settings)
-    env = {"TEACHREPEAT_NAVIGATION": json.dumps(overrides)}
+    env = navigation_env(args.settings)
     rows = []
     for seed in range(1, args.seeds + 1):
         row = _trial(args, scenario, seed, env)
@@ -206,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             "start": list(scenario.start),
             "goal": scenario.goal,
             "condition": args.condition,
-            "settings": overrides,
+            "settings": json.loads(env["TEACHREPEAT_NAVIGATION"]),
             "rows": rows,
             **total,
         },

@@ -130,7 +130,7 @@ def _trial_list(text: str) -> frozenset[int]:
     return trials
 
 
-def _navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
+def navigation_env(settings: list[tuple[str, Any]]) -> dict[str, str]:
     """The servers' environment for ``--set`` (checked here first, so a typo fails fast), with
     the benchmark's own settings (:data:`server.bench.nav_sweep.BENCH_SERVER_SETTINGS`)."""
     from server.bench.nav_sweep import BENCH_SERVER_SETTINGS
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: --record-all needs --record DIR (where to keep them)", file=sys.stderr)
         return 2
     try:
-        env = _navigation_env(args.settings)
+        env = navigation_env(args.settings)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2

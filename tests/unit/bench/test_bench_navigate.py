@@ -17,7 +17,7 @@ from robot_client.sim import load_plan
 from robot_client.trial import StepLog, cause, draw_trial
 from server.bench.common import wilson_interval
 from server.bench.nav_sweep import BENCH_SERVER_SETTINGS
-from server.bench.navigate import _navigation_env, _trial_list, summarise
+from server.bench.navigate import _trial_list, navigation_env, summarise
 from server.tuning import setting_argument as _setting
 
 PLANS = Path(__file__).resolve().parents[2] / "data" / "plans"
@@ -34,15 +34,15 @@ def test_set_takes_json_values_and_bare_words() -> None:
 
 
 def test_settings_are_checked_before_the_server_starts() -> None:
-    env = _navigation_env([("dock_second_axis", False), ("motion.unstick_s", 6)])
+    env = navigation_env([("dock_second_axis", False), ("motion.unstick_s", 6)])
     assert json.loads(env["TEACHREPEAT_NAVIGATION"]) == {
         **BENCH_SERVER_SETTINGS,
         "dock_second_axis": False,
         "motion.unstick_s": 6,
     }
-    assert json.loads(_navigation_env([])["TEACHREPEAT_NAVIGATION"]) == BENCH_SERVER_SETTINGS
+    assert json.loads(navigation_env([])["TEACHREPEAT_NAVIGATION"]) == BENCH_SERVER_SETTINGS
     with pytest.raises(ValueError, match="no setting 'dock_second_axes'"):
-        _navigation_env([("dock_second_axes", False)])
+        navigation_env([("dock_second_axes", False)])
 
 
 def test_only_takes_trial_numbers() -> None:
