@@ -363,8 +363,12 @@ class TourRuntime:
         ``(K, n_fine)`` likelihoods made of them (:meth:`observe`, maybe weighed since), the
         odometry (m/s, rad/s) over ``dt`` s; with the frame's familiarity and the places' spin
         images' similarities (the locations' images come first in canonical order), for the
-        heading the tracker keeps at each place."""
-        spin = np.stack([np.asarray(s.image[: self.n_spin], dtype=np.float64) for s in sims])
+        heading the tracker keeps at each place (not gathered while it keeps none)."""
+        spin = (
+            np.stack([np.asarray(s.image[: self.n_spin], dtype=np.float64) for s in sims])
+            if tracker.params.heading.enabled
+            else None
+        )
         return tracker.step(
             action, likelihood, v=v, w=w, dt=dt, familiarity=self.familiarity(sims), spin=spin
         )
