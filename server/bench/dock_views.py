@@ -3,14 +3,14 @@
 For each simulated home, each place and ``--headings`` headings around it, the view taught at
 the place is compared with views rendered ``--offsets`` metres along the heading (negative:
 behind the spot, the taught view looks larger: docking should read "short"; positive: past
-it, "past"; 0: on it, "there"). Three ways of reading the scale, on the same frames, named
-as ``NavigationParams.dock_taught_zooms``:
+it, "past"; 0: on it, "there"). Two ways of reading the scale, on the same frames:
 
-* ``off``: :func:`server.vision.homing.homing_scale_zoomed` over the frame's four zooms (the
-  default);
-* ``out``: :func:`server.vision.homing.homing_scale_taught_zoomed`, the frame zoomed in and
-  the taught image zoomed in for the frame zoomed out;
-* ``both``: the same with every zoom on the taught image.
+* ``frame``: :func:`server.vision.homing.homing_scale_zoomed` over the frame's four zooms (what
+  docking's creeping and verdicts read, and with ``NavigationParams.dock_taught_zooms``
+  ``"off"`` its looking for a view too);
+* ``taught``: :func:`server.vision.homing.homing_scale_taught_zoomed` over the taught image's
+  four zooms (what ``dock_taught_zooms`` ``"look"``, the default, reads while looking for a
+  view; it acts on the inliers, not on the verdict).
 
 Per offset: views, mean inliers, the share with at least ``dock_min_inliers`` (docking acts on
 them) and the share whose verdict (``scale_verdict`` with ``dock_scale_tol``) is right.
@@ -28,7 +28,7 @@ import numpy as np
 
 from server.bench.common import write_json
 
-METHODS = ("off", "out", "both")
+METHODS = ("frame", "taught")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -100,7 +100,6 @@ def run(args: argparse.Namespace) -> int:
                     taught = world.render(Pose(place.x, place.y, th))
                     tf = extract(taught, fp)
                     levels = taught_zoom_levels(taught, tf, zooms, fp)
-                    outs = tuple(lv for lv in levels if lv.factor <= 1.0)
                     for d in args.offsets:
                         x, y = place.x + d * math.cos(th), place.y + d * math.sin(th)
                         if world.collides(x, y, 0.2):
@@ -108,11 +107,8 @@ def run(args: argparse.Namespace) -> int:
                         frame = world.render(Pose(x, y, th))
                         ff = extract(frame, fp)
                         fits = {
-                            "off": homing_scale_zoomed(zoom_levels(frame, ff, zooms, fp), tf),
-                            "out": homing_scale_taught_zoomed(
-                                ff, outs, frame_levels=zoom_levels(frame, ff, zooms, fp, "in")
-                            ),
-                            "both": homing_scale_taught_zoomed(ff, levels),
+                            "frame": homing_scale_zoomed(zoom_levels(frame, ff, zooms, fp), tf),
+                            "taught": homing_scale_taught_zoomed(ff, levels),
                         }
                         row: dict[str, Any] = {"plan": plan.name, "place": place.name}
                         row.update({"heading": k, "offset_m": d})
@@ -138,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
             for m in METHODS
         ]
         print(f"{key:>7s} {cell['views']:5d}  " + "  ".join(parts))
-    print("(methods named as NavigationParams.dock_taught_zooms; off = the frame's four zooms)")
+    print("(frame: the frame's four zooms; taught: the taught image's, as looking reads them)")
     write_json(
         args.json,
         {

@@ -1,4 +1,5 @@
-"""``teachrepeat bench dock-views``: docking's verdict on single views, both ways of zooming."""
+"""``teachrepeat bench dock-views``: docking's verdict on single views, the frame's zooms and
+the taught image's."""
 
 from __future__ import annotations
 
@@ -22,24 +23,20 @@ def test_verdict_is_docking_s_reading_of_one_scale() -> None:
 def test_summary_counts_only_views_docking_acts_on() -> None:
     def row(d: float, inl: int, v: int) -> dict:
         fit = {"inliers": inl, "scale": 1.0, "verdict": v}
-        return {
-            "offset_m": d,
-            "off": fit,
-            "out": dict(fit, inliers=inl + 10),
-            "both": dict(fit, verdict=0, inliers=inl - 1),
-        }
+        return {"offset_m": d, "frame": fit, "taught": dict(fit, verdict=0, inliers=inl - 1)}
 
     rows = [row(-0.4, 20, 1), row(-0.4, 5, 1), row(-0.4, 30, 0), row(0.4, 12, -1)]
     table = summary(rows, [-0.4, 0.4], min_inliers=10)
     behind = table["-0.40"]
     assert behind["views"] == 3
-    assert behind["off"]["acted_share"] == pytest.approx(2 / 3)
-    assert behind["off"]["right_share"] == pytest.approx(1 / 3)  # the 5-inlier view: no say
-    assert behind["out"]["right_share"] == pytest.approx(2 / 3)
-    assert behind["both"]["right_share"] == 0.0
-    assert behind["both"]["acted_share"] == pytest.approx(2 / 3)  # 19 and 29 inliers
-    assert table["+0.40"]["off"]["right_share"] == 1.0
-    assert set(METHODS) <= set(behind)
+    assert behind["frame"]["acted_share"] == pytest.approx(2 / 3)
+    assert behind["frame"]["right_share"] == pytest.approx(1 / 3)  # the 5-inlier view: no say
+    assert behind["frame"]["mean_inliers"] == pytest.approx(55 / 3)
+    assert behind["taught"]["right_share"] == 0.0
+    assert behind["taught"]["acted_share"] == pytest.approx(2 / 3)  # 19 and 29 inliers
+    assert table["+0.40"]["frame"]["right_share"] == 1.0
+    assert table["+0.40"]["taught"]["acted_share"] == 1.0  # 11 inliers
+    assert set(behind) == {"views", *METHODS}
 
 
 @pytest.mark.slow
