@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from functools import cache
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -26,8 +27,6 @@ from server.vision.features import ImageFeatures, extract
 from server.vision.homing import (
     HomingResult,
     ScaleResult,
-    ZoomLevel,
-    Zooms,
     homing_offset,
     homing_scale,
     homing_scale_taught_zoomed,
@@ -410,29 +409,15 @@ def match_views(
 
     A zoomed fit reads the frame's zoom levels (:func:`~server.vision.homing.zoom_levels`:
     four corner extractions, made once per frame, and only on a frame that reads a zoomed
-    fit). With ``dock_taught_zooms`` (``"out"`` or ``"both"``) those zooms are read off the
-    taught image instead (:meth:`TourRuntime.taught_levels`, made once per taught image), the
-    rest off the frame (``"out"``: the frame zoomed in, two extractions once per frame); the
-    frame's four zooms still serve a taught image whose pixels the runtime cannot read. With
-    ``"look"`` the zoomed fits are the frame's, and ``taught_zoomed`` holds the fits on the
-    taught images' zooms, for looking for a view."""
+    fit). ``taught_zoomed`` holds the fits on the taught images' zooms instead
+    (:meth:`TourRuntime.taught_levels`, made once per taught image), for looking for a view
+    with ``dock_taught_zooms`` ``"look"``; where the runtime has no taught levels (``"off"``,
+    or pixels it cannot read) they are the frame's zoomed fits."""
     taught = runtime.features
     p = runtime.params
-    made: dict[str, tuple[ZoomLevel, ...]] = {}
+    frame_levels = cache(lambda: zoom_levels(image, features, p.dock_zooms, p.features))
 
-    def frame_levels(which: Zooms) -> tuple[ZoomLevel, ...]:
-        if which not in made:
-            made[which] = zoom_levels(image, features, p.dock_zooms, p.features, which)
-        return made[which]
-
-    def zoomed(i: int) -> ScaleResult | None:
-        levels = runtime.taught_levels(i) if p.dock_taught_zooms in ("out", "both") else None
-        if levels is None:
-            return homing_scale_zoomed(frame_levels("both"), taught[i])
-        own = frame_levels("in") if p.dock_taught_zooms == "out" else ()
-        return homing_scale_taught_zoomed(features, levels, frame_levels=own)
-
-    zoomed_fits = LazyFits(request.zoomed, zoomed)
+    zoomed_fits = LazyFits(request.zoomed, lambda i: homing_scale_zoomed(frame_levels(), taught[i]))
 
     def taught_zoomed(i: int) -> ScaleResult | None:
         levels = runtime.taught_levels(i)

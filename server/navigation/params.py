@@ -132,26 +132,26 @@ class NavigationParams:
       race fixed the same day): 47/50 unchanged, 47/50 lighting, 42/50 moved furniture, against
       44, 48 and 43 on 2026-11-23; the three unchanged-home runs place docking had left 0.6-0.9
       m off now arrive (0.06-0.48 m, replayed alone).
-    * ``dock_taught_zooms`` ("look"): which of those zooms are made on the taught images
-      instead of the frame, once per taught image (:meth:`TourRuntime.taught_levels`,
-      :func:`server.vision.homing.homing_scale_taught_zoomed`). ``"look"``: while place
-      docking and settling turn to look for one of the place's views
-      (:func:`server.navigation.docking.look_fit`), all of them (no extraction of the
-      frame's zooms on those frames); creeping and every verdict on the scale read the
-      frame's zooms, as ``"off"`` does everywhere. ``"out"``: everywhere, the zooms out (the
-      taught image zoomed in by ``z`` stands for the frame zoomed out by ``1 / z``; two
-      extractions on a docking step instead of four); ``"both"``: everywhere, all of them.
-      Measured 2026-11-29 (docs/reliability.md): ``bench load`` server CPU per frame 6.0 /
-      6.7 ms with ``"look"`` against 7.4 / 7.7 with ``"off"`` (docking's share 0.4-0.5 ms
-      against 1.6-1.8: looking was most of it); closed loop, the same 144 trials paired
-      (apartment + studio 20 and the office floor 8 per condition, same / lighting / moved,
-      seed 100): ``"look"`` 102 arrived, ``"off"`` 97, 8 and 7 wrong places, 8 and 6 ended
-      0.5 m or more from the spot, and the robots at the right place stopped as closely (p50
-      / p90 0.085 / 0.30 m against 0.085 / 0.31 m). ``"both"`` saves as much CPU but docks
-      less closely (2026-11-28: 100 arrived, 7 wrong, 10 ended 0.5 m or more off, p90 0.46
-      m; the sofa trial of the two-room test home ends 0.95 m off against 0.21 m; single
-      views 0.8 m behind the spot read "short" less often, 39 % right against 55 %), since
-      the verdicts are its own.
+    * ``dock_taught_zooms`` ("look"): where place docking and settling turn to look for one
+      of the place's views (:func:`server.navigation.docking.look_fit`), ``"look"`` reads
+      those zooms on the taught images instead of the frame, made once per taught image
+      (:meth:`TourRuntime.taught_levels`,
+      :func:`server.vision.homing.homing_scale_taught_zoomed`; no extraction of the frame's
+      zooms on those frames); creeping and every verdict on the scale read the frame's zooms,
+      as ``"off"`` does everywhere. Measured 2026-11-29 (docs/reliability.md): ``bench load``
+      server CPU per frame 6.0 / 6.7 ms with ``"look"`` against 7.4 / 7.7 with ``"off"``
+      (docking's share 0.4-0.5 ms against 1.6-1.8: looking was most of it); closed loop, the
+      same 144 trials paired (apartment + studio 20 and the office floor 8 per condition,
+      same / lighting / moved, seed 100): ``"look"`` 102 arrived, ``"off"`` 97, 8 and 7 wrong
+      places, 8 and 6 ended 0.5 m or more from the spot, and the robots at the right place
+      stopped as closely (p50 / p90 0.085 / 0.30 m against 0.085 / 0.31 m). The verdicts on
+      the taught images' zooms too (``"both"``) saved as much CPU but docked less closely
+      (2026-11-28: 100 arrived, 7 wrong, 10 ended 0.5 m or more off, p90 0.46 m; the sofa
+      trial of the two-room test home ends 0.95 m off against 0.21 m; single views 0.8 m
+      behind the spot read "short" less often, 39 % right against 55 %); the zooms out alone
+      on the taught images, everywhere (``"out"``), arrived less often (14 of 20 trials
+      against 16, 2026-11-26). Both were removed (2026-12-05; the code is in the git
+      history).
     * ``bump_s`` (1.0 s of robot time) and ``bump_fraction`` (0.25): a robot told to drive
       forward that reports less than this fraction of the commanded speed for this long is
       pressed against something its depth profile does not show (a chair's corner beside its
@@ -228,7 +228,7 @@ class NavigationParams:
     place_dock_turns: float = 1.25
     place_dock_away: float = float(np.pi)
     dock_zooms: tuple[float, ...] = (1.3, 1.69)
-    dock_taught_zooms: Literal["off", "out", "both", "look"] = "look"
+    dock_taught_zooms: Literal["off", "look"] = "look"
     dock_second_axis: bool = True
     fresh_belief: bool = True
     stall_s: float = 20.0
@@ -263,8 +263,7 @@ class NavigationParams:
     def __post_init__(self) -> None:
         if not all(np.isfinite(z) and z > 1 for z in self.dock_zooms):
             raise ValueError(f"dock_zooms must be finite factors > 1, got {self.dock_zooms}")
-        if self.dock_taught_zooms not in ("off", "out", "both", "look"):
+        if self.dock_taught_zooms not in ("off", "look"):
             raise ValueError(
-                "dock_taught_zooms must be 'off', 'out', 'both' or 'look', got "
-                f"{self.dock_taught_zooms!r}"
+                f"dock_taught_zooms must be 'off' or 'look', got {self.dock_taught_zooms!r}"
             )

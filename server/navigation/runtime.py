@@ -22,7 +22,7 @@ from server.navigation.pathtrack import PathEstimate, PathTracker, path_likeliho
 from server.policy.costs import cost_to_goal
 from server.vision.distinctiveness import ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
-from server.vision.homing import HomingParams, ZoomLevel, Zooms, match_features, taught_zoom_levels
+from server.vision.homing import HomingParams, ZoomLevel, match_features, taught_zoom_levels
 from server.vision.index import Similarity, TourIndex
 from server.vision.relpose import relative_pose
 
@@ -31,8 +31,8 @@ FloatArray = npt.NDArray[np.float64]
 #: when they cannot be had.
 TaughtPixels = Callable[[int], "npt.NDArray[np.uint8] | None"]
 #: Taught images whose zoom levels (:meth:`TourRuntime.taught_levels`) a runtime keeps, the
-#: least recently asked for forgotten first: about 9 or 18 kB each with the default features
-#: (2 or 4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
+#: least recently asked for forgotten first: about 18 kB each with the default features
+#: (4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
 ZOOM_CACHE_IMAGES = 256
 
 
@@ -100,13 +100,12 @@ class TourRuntime:
 
     def taught_levels(self, image: int) -> tuple[ZoomLevel, ...] | None:
         """Taught image ``image``'s (canonical index) zoom levels for docking's scale fits
-        (:func:`~server.vision.homing.taught_zoom_levels` of ``params.dock_zooms``, those
-        ``params.dock_taught_zooms`` names: ``"out"`` the taught image zoomed in, standing for
-        the frame zoomed out; ``"both"`` and ``"look"`` zoomed in and out). Made from its
-        pixels the first time it is asked for (two or four corner extractions), then kept for the
-        :data:`ZOOM_CACHE_IMAGES` images last asked for. ``None`` with ``dock_taught_zooms``
-        off or when the runtime cannot read the taught pixels (no :attr:`taught_pixels`, or it
-        gave ``None``)."""
+        while it looks for a view (``params.dock_taught_zooms`` ``"look"``): the taught image
+        zoomed in and out (:func:`~server.vision.homing.taught_zoom_levels` of
+        ``params.dock_zooms``). Made from its pixels the first time it is asked for (four
+        corner extractions), then kept for the :data:`ZOOM_CACHE_IMAGES` images last asked
+        for. ``None`` with ``dock_taught_zooms`` ``"off"`` or when the runtime cannot read the
+        taught pixels (no :attr:`taught_pixels`, or it gave ``None``)."""
         p = self.params
         if p.dock_taught_zooms == "off":
             return None
@@ -118,11 +117,10 @@ class TourRuntime:
         if read is None:
             return None  # nothing to remember: pixels may be given later
         pixels = read(image)
-        which: Zooms = "out" if p.dock_taught_zooms == "out" else "both"
         levels = (
             None
             if pixels is None
-            else taught_zoom_levels(pixels, self.features[image], p.dock_zooms, p.features, which)
+            else taught_zoom_levels(pixels, self.features[image], p.dock_zooms, p.features)
         )
         with self._zoomed_lock:  # two threads may have made it at once: the same levels
             self._zoomed[image] = levels

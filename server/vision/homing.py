@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
 
 import cv2
 import numpy as np
@@ -408,18 +407,9 @@ class ZoomLevel:
     features: ImageFeatures
 
 
-#: Which zoom levels to make: the frame zoomed in (factors ``z`` > 1), out (``1 / z``) or both.
-Zooms = Literal["both", "in", "out"]
-
-
-def _factors(zooms: Sequence[float], which: Zooms) -> list[float]:
-    """The zoom factors of ``zooms`` in level order (``z`` then ``1 / z``), those of ``which``."""
-    out = []
-    for z in zooms:
-        for f in (float(z), 1.0 / float(z)):
-            if f != 1.0 and (which == "both" or (f > 1.0) == (which == "in")):
-                out.append(f)
-    return out
+def _factors(zooms: Sequence[float]) -> list[float]:
+    """The zoom factors of ``zooms`` in level order: ``z`` then ``1 / z`` for each."""
+    return [f for z in zooms for f in (float(z), 1.0 / float(z)) if f != 1.0]
 
 
 def zoom_levels(
@@ -427,14 +417,12 @@ def zoom_levels(
     features: ImageFeatures,
     zooms: Sequence[float],
     params: FeatureParams,
-    which: Zooms = "both",
 ) -> tuple[ZoomLevel, ...]:
     """The frame itself (``features``) and, for every ``z`` in ``zooms``, the frame zoomed in by
-    ``z`` and out by ``1 / z``: ``1 + 2 len(zooms)`` levels (``which``: only those zoomed in or
-    out). The zoomed levels carry corners and descriptors only (:func:`extract_corners`):
-    homing reads nothing else."""
+    ``z`` and out by ``1 / z``: ``1 + 2 len(zooms)`` levels. The zoomed levels carry corners
+    and descriptors only (:func:`extract_corners`): homing reads nothing else."""
     levels = [ZoomLevel(1.0, features)]
-    for f in _factors(zooms, which):
+    for f in _factors(zooms):
         levels.append(ZoomLevel(f, extract_corners(zoom_image(image, f), params)))
     return tuple(levels)
 
@@ -469,14 +457,12 @@ def taught_zoom_levels(
     features: ImageFeatures,
     zooms: Sequence[float],
     params: FeatureParams,
-    which: Zooms = "both",
 ) -> tuple[ZoomLevel, ...]:
     """A taught image's counterparts of the frame's :func:`zoom_levels`, made once per taught
     image instead of once per frame: the level of factor ``f`` holds the taught image zoomed by
     ``1 / f`` (the frame zoomed in by ``f`` matched against the taught image is, up to the
     resampling, the frame matched against the taught image zoomed out by ``f``), in the same
-    order as :func:`zoom_levels`, the first being ``features`` itself (factor 1); ``which``
-    names the frame zooms the levels stand for (``"out"``: the taught image zoomed in).
+    order as :func:`zoom_levels`, the first being ``features`` itself (factor 1).
 
     A taught image zoomed out (``f`` > 1) shows its whole view inside the central ``1 / f`` of
     the image, the rim filled by repeated edge pixels: its corners are taken only inside that
@@ -486,7 +472,7 @@ def taught_zoom_levels(
     Corners and descriptors only (:func:`extract_corners`)."""
     w, h = params.width, params.height
     levels = [ZoomLevel(1.0, features)]
-    for f in _factors(zooms, which):
+    for f in _factors(zooms):
         g = 1.0 / f
         region = None
         if g < 1.0:  # the view shrunk about the centre; the rim around it is no view
@@ -532,18 +518,17 @@ def homing_scale_taught_zoomed(
     current: ImageFeatures,
     levels: Sequence[ZoomLevel],
     *,
-    frame_levels: Sequence[ZoomLevel] = (),
     params: HomingParams = HomingParams(),
     fit: ScaleParams = ScaleParams(),
 ) -> ScaleResult | None:
-    """:func:`homing_scale_zoomed` with some or all of the zooms on the taught side: ``levels``
-    from :func:`taught_zoom_levels` (the first, factor 1, is the taught image's own features),
-    ``current`` the frame's own features, and ``frame_levels`` (:func:`zoom_levels`) the frame
-    zooms to use instead of the taught level of the same factor.
+    """:func:`homing_scale_zoomed` with the zooms on the taught side: ``levels`` from
+    :func:`taught_zoom_levels` (the first, factor 1, is the taught image's own features),
+    ``current`` the frame's own features.
 
-    Docking uses it with ``NavigationParams.dock_taught_zooms``: by default (``"look"``) only
-    to look for a view; for its verdicts too (``"both"``) it saves as much CPU but docks less
-    closely (the parameter's documentation has the figures).
+    Docking uses it with ``NavigationParams.dock_taught_zooms`` ``"look"`` (the default) only
+    to look for a view; creeping and the verdicts read the frame's zooms. Read for the verdicts
+    too (the removed ``"both"``) it saved as much CPU but docked less closely (the
+    parameter's documentation has the figures).
     ``teachrepeat bench dock-views`` (apartment and studio, every place, 8 headings, the robot
     0.8 and 0.4 m behind and 0.4 m past the taught spot, 370 views): the taught image zoomed
     out, for the frame zoomed in, found fewer inliers (11.4 against 15.8 at 0.8 m behind) and
@@ -563,16 +548,13 @@ def homing_scale_taught_zoomed(
     if not levels or levels[0].factor != 1.0:
         raise ValueError("the first taught level must be the taught image itself (factor 1)")
     target = levels[0].features
-    own = {lv.factor: lv.features for lv in frame_levels if lv.factor != 1.0}
     taught = {lv.factor: lv.features for lv in levels}
     # the order of zoom_levels: 1, then by distance from 1 on a log scale, in before out
-    order = sorted(set(own) | set(taught), key=lambda f: (round(abs(float(np.log(f))), 9), f < 1.0))
-    pairs = []
-    for factor in order:
-        if factor == 1.0:
-            pairs.append((current, target))
-        elif factor in own:
-            pairs.append((own[factor], target))
-        else:
-            pairs.append(_as_frame_zoom(current, taught[factor], factor, params.features))
+    order = sorted(taught, key=lambda f: (round(abs(float(np.log(f))), 9), f < 1.0))
+    pairs = [
+        (current, target)
+        if factor == 1.0
+        else _as_frame_zoom(current, taught[factor], factor, params.features)
+        for factor in order
+    ]
     return _best_zoom(pairs, order, params, fit)

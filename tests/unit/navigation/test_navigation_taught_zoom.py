@@ -1,6 +1,6 @@
-"""Docking's zoom levels of the taught images (``dock_taught_zooms``): made once per taught
-image from its pixels, kept within a bound, and the frame's own zooms when the pixels cannot
-be read or the option is off; by default ("look") read only to look for a view."""
+"""Docking's zoom levels of the taught images (``dock_taught_zooms`` "look", the default):
+made once per taught image from its pixels, kept within a bound, read only to look for a view,
+and the frame's own zooms when the pixels cannot be read or the option is "off"."""
 
 from __future__ import annotations
 
@@ -38,22 +38,22 @@ def counting_reader(reads: list[int]):  # type: ignore[no-untyped-def]
 
 
 def test_levels_are_made_once_per_taught_image_from_its_pixels() -> None:
-    rt = runtime(dock_taught_zooms="out")
+    rt = runtime()
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     levels = rt.taught_levels(5)
     assert levels is not None and rt.taught_levels(5) is levels
     assert reads == [5]
     p = rt.params
-    reference = taught_zoom_levels(scene(IMAGES[5]), FEATURES[5], p.dock_zooms, p.features, "out")
-    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1 / 1.3, 1 / 1.69])
+    reference = taught_zoom_levels(scene(IMAGES[5]), FEATURES[5], p.dock_zooms, p.features)
+    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69])
     assert levels[0].features is FEATURES[5]
     assert all(a.features == b.features for a, b in zip(levels, reference, strict=True))
 
 
 def test_the_least_recently_asked_for_are_forgotten_first(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(runtime_module, "ZOOM_CACHE_IMAGES", 2)
-    rt = runtime(dock_taught_zooms="out")
+    rt = runtime()
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     for k in (1, 2, 1, 3, 1, 2):  # 2 is forgotten when 3 comes, 3 when 2 comes back
@@ -63,48 +63,12 @@ def test_the_least_recently_asked_for_are_forgotten_first(monkeypatch: pytest.Mo
 
 
 def test_without_pixels_there_are_no_taught_levels_and_nothing_is_remembered() -> None:
-    rt = runtime(dock_taught_zooms="both")
+    rt = runtime()
     rt.taught_pixels = None
     assert rt.taught_levels(3) is None
     assert len(rt._zoomed) == 0
     rt.taught_pixels = lambda k: None  # an image no longer stored
     assert rt.taught_levels(3) is None and rt.taught_levels(3) is None
-
-
-def test_views_use_the_taught_zooms_and_the_frame_s_only_where_pixels_are_missing() -> None:
-    """Naive reference: each requested image's zoomed fit reads the frame zoomed in and the
-    taught image zoomed in when its pixels can be read, the frame's four zooms otherwise."""
-    rt = runtime(dock_taught_zooms="out")
-    frame = zoomed(scene(IMAGES[7]), 1.4)
-    feats = extract(frame)
-    missing = {8}
-    rt.taught_pixels = lambda k: None if k in missing else scene(IMAGES[k])
-    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({6, 7, 8})))
-    p = rt.params
-    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
-    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
-    for k in (6, 7):
-        levels = taught_zoom_levels(scene(IMAGES[k]), FEATURES[k], p.dock_zooms, p.features, "out")
-        expected = homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
-        assert views.zoomed_scale(k) == expected
-    assert views.zoomed_scale(8) == homing_scale_zoomed(frame_levels, FEATURES[8])
-    fit = views.zoomed_scale(7)
-    assert fit is not None and fit.inliers >= 20
-    assert fit.scale == pytest.approx(1 / 1.4, rel=0.03)  # the taught view looks smaller
-
-
-def test_with_both_every_zoom_is_the_taught_image_s() -> None:
-    rt = runtime(dock_taught_zooms="both")
-    frame = zoomed(scene(IMAGES[3]), 1.5)
-    feats = extract(frame)
-    views = match_views(rt, frame, feats, ViewRequest(zoomed=frozenset({3})))
-    p = rt.params
-    levels = rt.taught_levels(3)
-    assert levels is not None
-    assert [lv.factor for lv in levels] == pytest.approx([1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69])
-    expected = taught_zoom_levels(scene(IMAGES[3]), FEATURES[3], p.dock_zooms, p.features)
-    assert all(a.features == b.features for a, b in zip(levels, expected, strict=True))
-    assert views.zoomed_scale(3) == homing_scale_taught_zoomed(feats, levels)
 
 
 def test_off_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
@@ -123,15 +87,17 @@ def test_off_docking_zooms_the_frame_only_and_reads_no_pixels() -> None:
     assert reads == []
 
 
-def test_an_unknown_choice_is_refused_with_the_choices() -> None:
-    with pytest.raises(ValueError, match="'off', 'out', 'both' or 'look'"):
-        runtime(dock_taught_zooms="yes")
+@pytest.mark.parametrize("choice", ["yes", "out", "both"])  # "out", "both": removed
+def test_an_unknown_choice_is_refused_with_the_choices(choice: str) -> None:
+    with pytest.raises(ValueError, match="must be 'off' or 'look', got '"):
+        runtime(dock_taught_zooms=choice)
 
 
 def test_views_are_matched_when_read_once_each_and_as_made_at_once() -> None:
     """Naive reference: the fits made when read equal those made directly; a requested view
-    never read costs nothing (here: its taught pixels are never read)."""
-    rt = runtime(dock_taught_zooms="out")
+    never read costs nothing (here: its taught pixels are never read), and the frame's zoomed
+    fits read no taught pixels."""
+    rt = runtime()
     reads: list[int] = []
     rt.taught_pixels = counting_reader(reads)
     frame = zoomed(scene(IMAGES[7]), 1.2)
@@ -140,17 +106,18 @@ def test_views_are_matched_when_read_once_each_and_as_made_at_once() -> None:
         offsets=frozenset({7}), scales=frozenset({7}), zoomed=frozenset({6, 7, 8})
     )
     views = match_views(rt, frame, feats, request)
-    assert reads == [] and set(views.zoomed) == {6, 7, 8} and len(views.zoomed) == 3
-    fit = views.zoomed_scale(7)
-    assert reads == [7] and views.zoomed_scale(7) is fit
+    assert reads == [] and set(views.taught_zoomed) == {6, 7, 8} and len(views.zoomed) == 3
+    fit = views.taught_zoomed_scale(7)
+    assert reads == [7] and views.taught_zoomed_scale(7) is fit
     p = rt.params
-    levels = taught_zoom_levels(scene(IMAGES[7]), FEATURES[7], p.dock_zooms, p.features, "out")
-    frame_in = zoom_levels(frame, feats, p.dock_zooms, p.features, "in")
-    assert fit == homing_scale_taught_zoomed(feats, levels, frame_levels=frame_in)
+    levels = taught_zoom_levels(scene(IMAGES[7]), FEATURES[7], p.dock_zooms, p.features)
+    assert fit == homing_scale_taught_zoomed(feats, levels)
+    frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
+    assert views.zoomed_scale(8) == homing_scale_zoomed(frame_levels, FEATURES[8])
     assert views.offset(7) == homing_offset(feats, FEATURES[7])
     assert views.scale(7) == homing_scale(feats, FEATURES[7])
     with pytest.raises(ViewNotRequested):
-        views.zoomed_scale(9)
+        views.taught_zoomed_scale(9)
     assert reads == [7]
 
 
@@ -163,11 +130,12 @@ def test_look_reads_the_taught_zooms_and_extracts_no_frame_zoom(
     from server.navigation import observation
 
     rt = runtime(dock_taught_zooms="look")
-    made: list[str] = []
+    made: list[tuple[float, ...]] = []
 
     def counting_zoom_levels(*args, **kwargs):  # type: ignore[no-untyped-def]
-        made.append(args[-1] if len(args) > 4 else kwargs.get("which", "both"))
-        return zoom_levels(*args, **kwargs)
+        levels = zoom_levels(*args, **kwargs)
+        made.append(tuple(lv.factor for lv in levels))
+        return levels
 
     monkeypatch.setattr(observation, "zoom_levels", counting_zoom_levels)
     frame = zoomed(scene(IMAGES[4]), 1.3)
@@ -185,7 +153,8 @@ def test_look_reads_the_taught_zooms_and_extracts_no_frame_zoom(
     frame_levels = zoom_levels(frame, feats, p.dock_zooms, p.features)
     assert views.taught_zoomed_scale(6) == homing_scale_zoomed(frame_levels, FEATURES[6])
     assert views.zoomed_scale(4) == homing_scale_zoomed(frame_levels, FEATURES[4])
-    assert made == ["both"]  # the frame's zooms once, for both
+    assert views.zoomed_scale(5) == homing_scale_zoomed(frame_levels, FEATURES[5])
+    assert made == [(1.0, 1.3, 1 / 1.3, 1.69, 1 / 1.69)]  # the frame's four zooms, once
     with pytest.raises(ViewNotRequested):
         views.taught_zoomed_scale(9)
 
