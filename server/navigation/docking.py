@@ -209,6 +209,7 @@ class Approach:
     dock_m: float = 0.0  # metres of docking moves commanded since the approach began
     log_scales: list[float] = field(default_factory=list)  # docking's last few log scales
     spot_checks: int = 0  # frames held at the tracked end for the place's depth to tell
+    on_spot: bool = False  # place docking put the robot on the taught spot (done by it)
 
 
 SPOT_CHECKS = 3
@@ -372,7 +373,7 @@ class Docking:
         pl.phase, pl.scan_misses = "scan", 0
         if float(np.hypot(*spot)) <= SPOT_M:
             pl.phase = "done"
-            self.approach.done, self.approach.edge = True, None
+            self.approach.done, self.approach.edge, self.approach.on_spot = True, None, True
             return Proposal(Command(0.0, 0.0, Action.do_nothing()), "on the taught spot (depth)")
         v, w = toward_spot(spot, self.rt)
         command = Command(v, w, Action.do_nothing(), None, "place-dock")
@@ -473,7 +474,7 @@ class Docking:
             pl.axes += 1
             if pl.axes >= 2:
                 pl.phase = "done"
-                self.approach.done, self.approach.edge = True, None
+                self.approach.done, self.approach.edge, self.approach.on_spot = True, None, True
                 return Proposal(Command(0.0, 0.0, Action.do_nothing()), "docked on two axes")
             pl.start("turn")
             return self._turn("one axis docked; a quarter turn to the next")
@@ -495,24 +496,33 @@ class Docking:
         robot's last move: one that turned or explored since may have lost its place). With
         topometric repeat, only following with the path tracker locked on that edge counts
         (``path``: this frame's estimate): driving along an edge the robot is not sure to be
-        on brought robots that were elsewhere to "arrive" by the belief alone."""
+        on brought robots that were elsewhere to "arrive" by the belief alone. Once place
+        docking has put the robot on the taught spot, following an edge into the goal
+        without the lock does not start the count again."""
         a = self.approach
         edge, kind = command.action.edge, command.action.kind
         tracked = not self.p.topometric.enabled or (
             path is not None and path.locked and path.edge == edge
         )
-        if (
+        into_goal = (
             kind == ActionKind.NAVIGATE
             and edge is not None
-            and (self.rt.graph.edges[edge].target == self.goal)
-            and tracked
-        ):
+            and self.rt.graph.edges[edge].target == self.goal
+        )
+        if into_goal and tracked:
             if edge != a.edge:
                 a.edge, a.dock_m = edge, 0.0
             a.seconds += dt
             a.done = a.done or a.seconds >= self.p.approach_s
+        elif into_goal and a.on_spot:
+            # docked on the taught spot by the place's own views or depth, then following an
+            # edge into the goal without the tracker's lock (a turn at the end of a path
+            # taught by hand): still there. Starting again sent a robot 0.1 m from the goal
+            # out on its round trip, over and over
+            pass
         elif kind != ActionKind.DO_NOTHING and self.needs_approach:
             a.seconds, a.done, a.edge, a.dock_m, a.spot_checks = 0.0, False, None, 0.0, 0
+            a.on_spot = False
 
     # -- docking along the edge ----------------------------------------------------------------
 

@@ -68,7 +68,10 @@ class NavigationParams:
     * ``approach_s`` (1.0 s of robot time): the task arrives only after the robot has followed
       a taught edge into the goal for this long (Navigate on an edge whose target is the
       goal) as its last move: turning or exploring since starts the count again, since a robot
-      that had to look round may have lost its place. Until then the goal votes to leave by
+      that had to look round may have lost its place (with topometric repeat only following
+      with the path tracker locked on that edge counts; once place docking has put the
+      robot on the taught spot, following an edge into the goal without the lock does not
+      start it again). Until then the goal votes to leave by
       its cheapest round trip (:func:`server.policy.voting.build_vote_plan`, ``hold_goal``):
       a robot that finds itself in the goal room but off the taught spot backs out, turns
       round and homes in along the end of the taught path, which is how it reaches the spot

@@ -15,6 +15,7 @@ from server.belief.model import Action, ActionKind
 from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams
 from server.navigation.behaviours import FindEdge, Follow, Retrace
+from server.navigation.command import Command
 from server.navigation.docking import Docking
 from server.navigation.observation import committed, held_mass
 from server.navigation.pathtrack import PathEstimate
@@ -248,6 +249,41 @@ def test_a_tracker_lost_short_of_the_goal_the_policy_holds_turns_the_robot_to_lo
     assert proposal.command.action.kind == ActionKind.DO_NOTHING
     moving = observation(rt, action=Action.navigate(0), active_edge=0, goal=B, at_goal=True)
     assert docking.confirm(replace(moving, path=lost), False) == (None, False)
+
+
+def test_a_robot_docked_on_the_spot_stays_approached_while_the_lock_on_the_edge_in_is_lost() -> (
+    None
+):
+    """A path taught by hand ends with a turn on the spot. Place docking put the robot on the
+    taught spot; the tracker locked on the edge in again, then let go for a few frames 0.1 m
+    from the goal; the approach started again, and the goal, not yet approached, sent the
+    robot out on its round trip, over and over (the end-to-end teach-by-driving test's "go
+    to", failed after 2824 frames). Docked on the spot, following the edge in without the lock
+    leaves the approach done; without that docking, a lost lock starts it again, as does a
+    search either way."""
+    rt = runtime()
+    follow = Command(0.2, 0.0, Action.navigate(0), 1, "follow")
+    search = Command(0.0, 0.5, Action.rotate(2), None, "search")
+    dt = 0.1
+    # approached by following the edge in with the lock: a lost lock starts it again
+    docking = Docking(rt, B)
+    a = docking.approach
+    assert docking.needs_approach and not a.done
+    for _ in range(11):
+        docking.track(follow, dt, estimate(rt, along=1.0))
+    assert a.done and a.edge == 0 and not a.on_spot
+    docking.track(follow, dt, estimate(rt, along=1.1, locked=False))
+    assert not a.done and a.seconds == 0.0
+    # docked on the spot by the place's own depth or views (as place docking leaves it)
+    a.done, a.edge, a.on_spot = True, None, True
+    for _ in range(3):
+        docking.track(follow, dt, estimate(rt, along=1.1))  # locked again: counts
+    for _ in range(5):
+        docking.track(follow, dt, estimate(rt, along=1.1, locked=False))
+    assert a.done and a.on_spot
+    # a search (the robot looked round) starts it again, and it is no longer on the spot
+    docking.track(search, dt, None)
+    assert not a.done and not a.on_spot and a.seconds == 0.0 and a.edge is None
 
 
 def test_held_mass_equals_the_sum_over_the_edges_states_naively() -> None:
