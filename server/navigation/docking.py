@@ -211,6 +211,10 @@ class Approach:
     spot_checks: int = 0  # frames held at the tracked end for the place's depth to tell
     on_spot: bool = False  # place docking put the robot on the taught spot (done by it)
 
+    def docked_on_spot(self) -> None:
+        """Place docking has put the robot on the taught spot: the approach is done."""
+        self.done, self.edge, self.on_spot = True, None, True
+
 
 SPOT_CHECKS = 3
 """Frames the robot holds at the end of a tracked path for the place's depth to tell."""
@@ -373,7 +377,7 @@ class Docking:
         pl.phase, pl.scan_misses = "scan", 0
         if float(np.hypot(*spot)) <= SPOT_M:
             pl.phase = "done"
-            self.approach.done, self.approach.edge, self.approach.on_spot = True, None, True
+            self.approach.docked_on_spot()
             return Proposal(Command(0.0, 0.0, Action.do_nothing()), "on the taught spot (depth)")
         v, w = toward_spot(spot, self.rt)
         command = Command(v, w, Action.do_nothing(), None, "place-dock")
@@ -474,7 +478,7 @@ class Docking:
             pl.axes += 1
             if pl.axes >= 2:
                 pl.phase = "done"
-                self.approach.done, self.approach.edge, self.approach.on_spot = True, None, True
+                self.approach.docked_on_spot()
                 return Proposal(Command(0.0, 0.0, Action.do_nothing()), "docked on two axes")
             pl.start("turn")
             return self._turn("one axis docked; a quarter turn to the next")
