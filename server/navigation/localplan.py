@@ -21,7 +21,7 @@ instead of two commands that cancel:
   it stays nearly as cheap as the best new one.
 
 All positions are in the robot's frame (metres ahead, metres to the left). Pure: NumPy,
-OpenCV, SciPy.
+SciPy.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ import math
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
-import cv2
 import numpy as np
 import numpy.typing as npt
+from scipy.ndimage import distance_transform_edt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
@@ -217,21 +217,31 @@ def _grid_edges(n: int) -> tuple[IntArray, IntArray, FloatArray]:
     return np.concatenate(froms), np.concatenate(tos), np.concatenate(lengths)
 
 
+def cell_clearance(points: FloatArray, params: LocalPlanParams) -> FloatArray:
+    """``(n, n)`` metres from the centre of each cell of the grid around the robot (as
+    :func:`cell_costs` lays it out) to the nearest cell holding a remembered hit ``(n, 2)``;
+    ``inf`` everywhere when none lies inside the grid. Exact (float64), so the same in every
+    call and process (OpenCV's precise transform is float32 and its last bit varies between
+    calls: the plan round an obstacle, and a trial's outcome, varied between runs)."""
+    p = params
+    n = 2 * _half_cells(p) + 1
+    ij = _cell_of(points, p)
+    inside = np.all((ij >= 0) & (ij < n), axis=1)
+    if not inside.any():
+        return np.full((n, n), np.inf)
+    free = np.ones((n, n), dtype=bool)
+    free[ij[inside, 0], ij[inside, 1]] = False
+    out: FloatArray = distance_transform_edt(free) * p.cell_m
+    return out
+
+
 def cell_costs(points: FloatArray, params: LocalPlanParams) -> FloatArray:
     """``(n, n)`` what crossing each cell of the grid around the robot costs per cell
     (1 in free space, more near a hit, ``inf`` too near). Row ``i`` is ``x = (i - c) *
     cell_m`` ahead, column ``j`` is ``y = (j - c) * cell_m`` to the left, ``c = n // 2``."""
     p = params
-    c = _half_cells(p)
-    n = 2 * c + 1
-    ij = _cell_of(points, p)
-    inside = np.all((ij >= 0) & (ij < n), axis=1)
-    if inside.any():
-        free = np.full((n, n), 255, dtype=np.uint8)
-        free[ij[inside, 0], ij[inside, 1]] = 0
-        clearance = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * p.cell_m
-    else:
-        clearance = np.full((n, n), np.inf, dtype=np.float32)
+    n = 2 * _half_cells(p) + 1
+    clearance = cell_clearance(points, p)
     wary = np.clip((p.wary_m - clearance) / (p.wary_m - p.closed_m), 0.0, 1.0)
     costs = 1.0 + (p.wary_cost - 1.0) * wary
     closed = clearance < p.closed_m

@@ -26,6 +26,7 @@ from server.navigation.localplan import (
     ObstacleMemory,
     blocked,
     carry,
+    cell_clearance,
     cell_costs,
     goals_ahead,
     route,
@@ -76,6 +77,27 @@ def test_the_memory_holds_one_hit_per_cell() -> None:
         m.update(0.0, 0.0, 0.1, wall)
     cells = np.floor(m.points / P.cell_m).astype(int)
     assert len(np.unique(cells, axis=0)) == len(cells) <= 31
+
+
+def test_the_clearance_is_exactly_the_naive_distance_to_the_nearest_hit_cell() -> None:
+    # exact, not within a tolerance: a last bit that differs between calls chose another
+    # way round an obstacle in one run of a trial and not in the next
+    rng = np.random.default_rng(3)
+    c = round(P.extent_m / P.cell_m)
+    n = 2 * c + 1
+    cells = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), axis=-1)
+    for k in (1, 5, 40):
+        points = rng.uniform(-2.3, 2.3, (k, 2))  # some outside the grid
+        clearance = cell_clearance(points, P)
+        hits = np.rint(points / P.cell_m).astype(np.int64) + c
+        hits = hits[np.all((hits >= 0) & (hits < n), axis=1)]
+        if len(hits) == 0:
+            assert np.all(np.isinf(clearance))
+            continue
+        squared = ((cells[:, :, None, :] - hits[None, None, :, :]) ** 2).sum(axis=-1).min(axis=-1)
+        assert np.array_equal(clearance, np.sqrt(squared.astype(np.float64)) * P.cell_m)
+        assert np.array_equal(clearance, cell_clearance(points.copy(), P))
+    assert np.all(np.isinf(cell_clearance(np.array([[5.0, 5.0]]), P)))
 
 
 def test_blocked_agrees_with_a_densely_sampled_segment() -> None:
