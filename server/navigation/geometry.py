@@ -82,6 +82,11 @@ def dead_reckon(timestamps: npt.ArrayLike, v: npt.ArrayLike, w: npt.ArrayLike) -
     return np.stack([x, y, wrap(theta)], axis=1)
 
 
+STAND_M = 0.02
+"""Images taught within this many metres along of each other stand at one spot (a turn on
+the spot there), m."""
+
+
 @dataclass(frozen=True)
 class EdgePath:
     """One taught edge as a path: its images' poses in the edge's frame.
@@ -121,16 +126,23 @@ class EdgePath:
         idx = np.asarray(keep, dtype=np.int64)
         return self.poses[idx, :2], self.along[idx], idx
 
-    def image_at(self, s: float) -> int:
-        """The image taught nearest ``s`` metres along (the first of a standing-still
-        stretch: where the robot got there)."""
+    def image_at(self, s: float, heading: float | None = None) -> int:
+        """The image taught nearest ``s`` metres along: the first of a standing-still
+        stretch (where the robot got there), or with ``heading`` (radians, the edge's frame)
+        the image of that stretch taught facing nearest it (where the teacher turned on the
+        spot, as at a place before setting off: the first image faced the way before the
+        turn)."""
         k = int(np.searchsorted(self.along, s, side="left"))
         k = min(max(k, 0), self.n_images - 1)
         if k > 0 and abs(self.along[k - 1] - s) <= abs(self.along[k] - s):
             k -= 1
         while k > 0 and self.along[k - 1] == self.along[k]:
             k -= 1
-        return k
+        if heading is None:
+            return k
+        stretch = np.nonzero(np.abs(self.along - self.along[k]) < STAND_M)[0]
+        off = np.abs(wrap(self.poses[stretch, 2] - heading))
+        return int(stretch[int(np.argmin(off))])
 
     def point_at(self, s: float) -> FloatArray:
         """``(2,)`` the position ``s`` metres along (clamped to the path's ends)."""

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.model import ActionKind
-from server.navigation.geometry import EdgePath, compose, relative, wrap
+from server.navigation.geometry import STAND_M, EdgePath, compose, relative, wrap
 from server.navigation.localplan import LocalPlanParams
 from server.navigation.pursuit import PursuitParams
 from server.navigation.scanmatch import (
@@ -452,7 +452,8 @@ class PathTracker:
         assert self.edge is not None
         path, p = self.paths[self.edge], self.p
         along, _ = path.project(self.mean[:2])
-        images = sorted({path.image_at(along + a) for a in p.ahead_m})
+        heading = float(self.mean[2])
+        images = sorted({path.image_at(along + a, heading) for a in p.ahead_m})
         fixes = 0
         best: tuple[RelativePose, FloatArray] | None = None
         for k in images:
@@ -604,7 +605,7 @@ class PathTracker:
         where the taught robot turned on the spot there (a place, before it set off or after
         it stopped), up to four across that turn, since the robot may face any way there."""
         k = path.image_at(along)
-        same = np.nonzero(np.abs(path.along - path.along[k]) < 0.02)[0]
+        same = np.nonzero(np.abs(path.along - path.along[k]) < STAND_M)[0]
         if len(same) <= 1:
             return [k]
         picks = np.unique(np.linspace(0, len(same) - 1, 4).round().astype(int))
@@ -622,6 +623,7 @@ class PathTracker:
         along, lateral = path.project(self.mean[:2])
         self.along = along
         heading = path.heading_at(along)
+        nearest = path.image_at(along, float(self.mean[2]))
         pc = path_frame_cov(self.cov, heading)
         sl, sa = math.sqrt(max(pc[1, 1], 0.0)), math.sqrt(max(pc[0, 0], 0.0))
         sh = math.sqrt(max(self.cov[2, 2], 0.0))
@@ -644,8 +646,8 @@ class PathTracker:
             sigma_heading=sh,
             locked=locked,
             fixes=fixes,
-            image=self.image(self.edge, path.image_at(along)),
-            index=path.image_at(along),
+            image=self.image(self.edge, nearest),
+            index=nearest,
             length_m=path.length,
             since_fix_s=since,
             chained=self.chained,

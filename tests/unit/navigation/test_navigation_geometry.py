@@ -102,4 +102,9 @@ def test_a_turn_on_the_spot_has_no_length_and_images_there_share_a_place() -> No
     _, _, idx = path.polyline
     assert idx[0] == 0 and idx[1] == 5  # the turn collapses to one point
     assert path.image_at(0.0) == 0  # the first image of the stretch
+    # with a heading: the image of the turn taught facing nearest it (0, 0.2, .. 0.8 rad)
+    assert [path.image_at(0.0, h) for h in (-1.0, 0.25, 0.5, 0.75, 3.0)] == [0, 1, 2, 4, 4]
+    assert path.image_at(0.0, -2 * math.pi + 0.62) == 3  # angles wrap
+    # driving: the nearest image, whatever the heading
+    assert path.image_at(0.2, 3.0) == path.image_at(0.2) == 8
     assert math.isclose(path.heading_at(0.1), 0.8, abs_tol=1e-6)  # the way it then drove
