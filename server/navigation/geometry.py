@@ -140,9 +140,17 @@ class EdgePath:
             k -= 1
         if heading is None:
             return k
-        stretch = np.nonzero(np.abs(self.along - self.along[k]) < STAND_M)[0]
+        stretch = self.stretch(k)
         off = np.abs(wrap(self.poses[stretch, 2] - heading))
         return int(stretch[int(np.argmin(off))])
+
+    def stretch(self, k: int) -> IntArray:
+        """``(m,)`` the images taught standing at image ``k``'s spot: within ``STAND_M``
+        along of it (``k`` among them), in order."""
+        a = float(self.along[k])
+        lo = int(np.searchsorted(self.along, a - STAND_M, side="right"))
+        hi = int(np.searchsorted(self.along, a + STAND_M, side="left"))
+        return np.arange(lo, hi, dtype=np.int64)
 
     def point_at(self, s: float) -> FloatArray:
         """``(2,)`` the position ``s`` metres along (clamped to the path's ends)."""

@@ -240,8 +240,8 @@ def cell_costs(points: FloatArray, params: LocalPlanParams) -> FloatArray:
     (1 in free space, more near a hit, ``inf`` too near). Row ``i`` is ``x = (i - c) *
     cell_m`` ahead, column ``j`` is ``y = (j - c) * cell_m`` to the left, ``c = n // 2``."""
     p = params
-    n = 2 * _half_cells(p) + 1
     clearance = cell_clearance(points, p)
+    n = len(clearance)
     wary = np.clip((p.wary_m - clearance) / (p.wary_m - p.closed_m), 0.0, 1.0)
     costs = 1.0 + (p.wary_cost - 1.0) * wary
     closed = clearance < p.closed_m

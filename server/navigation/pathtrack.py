@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.model import ActionKind
-from server.navigation.geometry import STAND_M, EdgePath, compose, relative, wrap
+from server.navigation.geometry import EdgePath, compose, relative, wrap
 from server.navigation.localplan import LocalPlanParams
 from server.navigation.pursuit import PursuitParams
 from server.navigation.scanmatch import (
@@ -605,7 +605,7 @@ class PathTracker:
         where the taught robot turned on the spot there (a place, before it set off or after
         it stopped), up to four across that turn, since the robot may face any way there."""
         k = path.image_at(along)
-        same = np.nonzero(np.abs(path.along - path.along[k]) < STAND_M)[0]
+        same = path.stretch(k)
         if len(same) <= 1:
             return [k]
         picks = np.unique(np.linspace(0, len(same) - 1, 4).round().astype(int))

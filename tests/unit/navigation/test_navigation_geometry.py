@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from server.domain import Edge
 from server.navigation.geometry import (
+    STAND_M,
     EdgePath,
     compose,
     dead_reckon,
@@ -108,3 +109,16 @@ def test_a_turn_on_the_spot_has_no_length_and_images_there_share_a_place() -> No
     # driving: the nearest image, whatever the heading
     assert path.image_at(0.2, 3.0) == path.image_at(0.2) == 8
     assert math.isclose(path.heading_at(0.1), 0.8, abs_tol=1e-6)  # the way it then drove
+
+
+def test_a_stretch_is_the_images_within_stand_m_along_as_a_naive_scan_finds_them() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        n = int(rng.integers(2, 80))
+        t = np.arange(n) * 0.1
+        # standing, creeping and driving; 0.2 m/s over 0.1 s lands on STAND_M exactly
+        v = np.where(rng.random(n) < 0.3, 0.0, rng.choice([0.01, 0.1, 0.2, 0.25], n))
+        path = EdgePath.of(Edge(0, 1, tuple(range(n)), t, v, rng.uniform(-1, 1, n)))
+        for k in range(n):
+            naive = [j for j in range(n) if abs(path.along[j] - path.along[k]) < STAND_M]
+            assert path.stretch(k).tolist() == naive

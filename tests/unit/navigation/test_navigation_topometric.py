@@ -275,7 +275,7 @@ def test_a_robot_docked_on_the_spot_stays_approached_while_the_lock_on_the_edge_
     docking.track(follow, dt, estimate(rt, along=1.1, locked=False))
     assert not a.done and a.seconds == 0.0
     # docked on the spot by the place's own depth or views (as place docking leaves it)
-    a.done, a.edge, a.on_spot = True, None, True
+    a.docked_on_spot()
     for _ in range(3):
         docking.track(follow, dt, estimate(rt, along=1.1))  # locked again: counts
     for _ in range(5):
