@@ -94,6 +94,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--set): --set tracker.heading.enabled=true",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
+    parser.add_argument(
+        "--trace",
+        type=Path,
+        default=None,
+        help="write every step of every trial (true pose, command, top beliefs, the path "
+        "tracker's estimate) to DIR/seed_N.jsonl, as bench navigate's --trace",
+    )
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -116,10 +123,12 @@ def _trial(
     from robot_client.sim import SimulatedRobot, SimWorld, load_plan
     from robot_client.sim.world import Pose
     from robot_client.trial import run_trial
+    from server.bench.nav_sweep import tracer
     from server.process import ADMIN, start_server
 
     plan = load_plan(scenario.plan)
     first = next(p for p in plan.places if p.name == scenario.route[0])
+    trace: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp:
         server = start_server(Path(tmp) / "carried.sqlite", extra_env=env)
         try:
@@ -133,10 +142,20 @@ def _trial(
                 teach_route(client, "carried", robot, plan, tour="short", route=scenario.route)
                 robot.teleport(Pose(*scenario.start))
                 result = run_trial(
-                    client, "carried", robot, plan, scenario.goal, max_steps=args.max_steps
+                    client,
+                    "carried",
+                    robot,
+                    plan,
+                    scenario.goal,
+                    max_steps=args.max_steps,
+                    on_step=None if args.trace is None else tracer(robot, trace),
                 )
         finally:
             server.stop()
+    if args.trace is not None:
+        args.trace.mkdir(parents=True, exist_ok=True)
+        lines = "".join(json.dumps(r) + "\n" for r in trace)
+        (args.trace / f"seed_{seed}.jsonl").write_text(lines)
     return {
         "seed": seed,
         "state": result.state,

@@ -207,7 +207,7 @@ class Worker:
                 max_steps=self.config.max_steps,
                 on_step=None
                 if self.config.trace is None
-                else _tracer(robot, trace, self._truth.get(spec.plan)),
+                else tracer(robot, trace, self._truth.get(spec.plan)),
                 record=True if self.config.record is not None else None,
                 truth=self._truth.get(spec.plan),
                 depth_sensor=not self.config.no_depth,
@@ -275,9 +275,7 @@ def _slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name)
 
 
-def _tracer(
-    robot: Any, out: list[dict[str, Any]], taught: Any = None
-) -> Callable[[int, Any], None]:
+def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callable[[int, Any], None]:
     """A step hook that records the true pose, the command, the top beliefs, the belief over
     appearance models, the change evidence and the path tracker's estimate (edge id, along,
     lateral, heading error, their standard deviations, locked, and the true distance to that
