@@ -33,13 +33,6 @@ from server.belief.appearance import (
     posterior,
     update_log_posterior,
 )
-from server.belief.heading import (
-    HeadingParams,
-    SpinLayout,
-    consistency,
-    predict_heading,
-    update_heading,
-)
 from server.belief.model import (
     Action,
     BeliefModel,
@@ -195,9 +188,6 @@ class TrackerParams:
     * ``smoother_lag`` (10): steps kept for the fixed-lag smoother (0 disables it).
     * ``appearance``: how the belief over appearance models follows the evidence when
       :meth:`Tracker.step` gets one likelihood per model (:mod:`server.belief.appearance`).
-    * ``heading``: the way the robot faces at each place, kept from the odometry, weighing
-      the place's spin images when :meth:`Tracker.step` gets their similarities
-      (:mod:`server.belief.heading`).
     """
 
     localised_mass: float = 0.8
@@ -214,7 +204,6 @@ class TrackerParams:
     top_k: int = 5
     smoother_lag: int = 10
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
-    heading: HeadingParams = field(default_factory=HeadingParams)
 
     def __post_init__(self) -> None:
         if not 0 < self.localised_mass <= 1:
@@ -303,8 +292,6 @@ class TrackerMemory:
     * ``appearance``: ``(K,)`` log posterior over the appearance models (empty: none yet).
     * ``familiar``: running mean of the frames' familiarity (NaN: none yet).
     * ``evidence_fast`` / ``evidence_slow``: the EMAs of the evidence ratio (< 0: no frame yet).
-    * ``heading``: ``(n_spin,)`` which spin image the robot would face at each place
-      (:mod:`server.belief.heading`; empty: nothing known, or a tour whose places changed).
 
     :meth:`to_dict` / :meth:`from_dict` give it a JSON-safe form (NaN as ``None``).
     """
@@ -313,7 +300,6 @@ class TrackerMemory:
     familiar: float = math.nan
     evidence_fast: float = -1.0
     evidence_slow: float = -1.0
-    heading: tuple[float, ...] = ()
 
     def to_dict(self) -> dict[str, object]:
         """Plain floats and lists, NaN as ``None`` (strict JSON has no NaN)."""
@@ -326,7 +312,6 @@ class TrackerMemory:
             "familiar": num(self.familiar),
             "evidence_fast": num(self.evidence_fast),
             "evidence_slow": num(self.evidence_slow),
-            "heading": [float(x) for x in self.heading],
         }
 
     @classmethod
@@ -347,18 +332,11 @@ class TrackerMemory:
             appearance = tuple(num(x, math.nan) for x in raw)
             if not all(math.isfinite(x) for x in appearance):
                 raise BeliefError("tracker memory: appearance must be finite")
-            raw = data.get("heading") or []
-            if not isinstance(raw, list):
-                raise BeliefError("tracker memory: heading must be a list")
-            heading = tuple(num(x, math.nan) for x in raw)
-            if not all(math.isfinite(x) and x >= 0 for x in heading):
-                raise BeliefError("tracker memory: heading must be finite and >= 0")
             return cls(
                 appearance=appearance,
                 familiar=num(data.get("familiar"), math.nan),
                 evidence_fast=num(data.get("evidence_fast"), -1.0),
                 evidence_slow=num(data.get("evidence_slow"), -1.0),
-                heading=heading,
             )
         except AttributeError:
             raise BeliefError("tracker memory must be a mapping") from None
@@ -435,7 +413,6 @@ class Tracker:
         self._smoother = (
             FixedLagSmoother(model, self.params.smoother_lag) if self.params.smoother_lag else None
         )
-        self._spins = SpinLayout.of(model.graph)
         self.reset()
 
     @property
@@ -457,7 +434,6 @@ class Tracker:
         self._steps = 0
         self._appearance = np.zeros(0)  # log posterior over appearance models; empty = none yet
         self._familiar = math.nan  # running mean of the frames' familiarity; NaN = none yet
-        self._heading = self._spins.uniform()  # per place, which spin image it would face
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -470,7 +446,6 @@ class Tracker:
             familiar=self._familiar,
             evidence_fast=self._fast,
             evidence_slow=self._slow,
-            heading=tuple(float(x) for x in self._heading),
         )
 
     def set_belief(self, belief: npt.ArrayLike, memory: TrackerMemory | None = None) -> None:
@@ -489,8 +464,6 @@ class Tracker:
             self._appearance = np.asarray(memory.appearance, np.float64)
             self._familiar = float(memory.familiar)
             self._fast, self._slow = float(memory.evidence_fast), float(memory.evidence_slow)
-            if len(memory.heading) == self._spins.n_spin:  # else the places changed: unknown
-                self._heading = np.asarray(memory.heading, np.float64)
         if self._smoother is not None:
             self._smoother.reset(self._belief)
         self._summary = summarise(self._belief, self.model, top_k=self.params.top_k)
@@ -504,17 +477,12 @@ class Tracker:
         dt: float,
         w: float = 0.0,
         familiarity: float = math.nan,
-        spin: npt.ArrayLike | None = None,
     ) -> BeliefSummary:
         """Predict with ``action`` (advance from ``v`` m/s, ``w`` rad/s and ``dt`` s), update,
         summarise. ``familiarity``: with one likelihood per appearance model, the frame's
         familiarity in [0, 1] (:func:`~server.belief.appearance.familiarity`), smoothed over
         the frames into the change evidence that weighs the models; NaN (the default): no
-        information, the models compete freely. ``spin``: ``(n_spin,)`` or ``(K, n_spin)``
-        the similarities of the places' spin images (the first ``n_spin`` of the engine's, one
-        row per likelihood row): each place's likelihood is weighed by the heading its
-        odometry allows (:mod:`server.belief.heading`, ``TrackerParams.heading``); ``None``:
-        001 eq. 2 as the likelihood says."""
+        information, the models compete freely."""
         p = self.params
         m = self.model
         lik = np.asarray(likelihood, dtype=np.float64)
@@ -527,7 +495,6 @@ class Tracker:
         if not math.isfinite(float(lik.sum())) or float(lik.min()) < 0:
             raise InvalidLikelihoodError("likelihood must be finite and >= 0")
         lik = lik.reshape(-1, m.n_fine)
-        lik, heading = self._weigh_places(lik, spin, w * dt)
         change = 1.0  # with one model there is nothing to weigh
         if stacked:
             if math.isfinite(familiarity):
@@ -572,9 +539,6 @@ class Tracker:
             max(m.params.teleport, p.surprise_teleport),
             m.params.teleport + p.surprise_gain * (1.0 - evidence),
         )
-        if heading is not None:
-            predicted, spin_sim = heading
-            self._heading = update_heading(predicted, mix @ spin_sim, self._spins)
         post = mix_prior(moved, m.prior, eps)
         post *= lik  # eq. 1; lik >= floor > 0, so the sum is > 0
         post /= post.sum()
@@ -607,33 +571,6 @@ class Tracker:
             light_change=float(change),
         )
         return self._summary
-
-    def _weigh_places(
-        self, lik: FloatArray, spin: npt.ArrayLike | None, turn: float
-    ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
-        """``lik`` ``(K, n_fine)`` with each place's likelihood weighed by the heading its
-        odometry allows (the heading distributions predicted by the ``turn``, rad, and the
-        spin images' similarities ``(K, n_spin)`` for the update), or as it was (no ``spin``,
-        heading off, no spin images)."""
-        hp, layout = self.params.heading, self._spins
-        if spin is None or not hp.enabled or layout.n_spin == 0:
-            return lik, None
-        sim = np.asarray(spin, dtype=np.float64)
-        if sim.shape[-1:] != (layout.n_spin,) or sim.reshape(-1, layout.n_spin).shape[0] != len(
-            lik
-        ):
-            raise InvalidLikelihoodError(
-                f"spin has shape {sim.shape}, expected ({len(lik)}, {layout.n_spin}): the "
-                "similarities of the places' spin images, one row per likelihood row"
-            )
-        sim = sim.reshape(len(lik), layout.n_spin)
-        if not np.all(np.isfinite(sim)) or float(sim.min()) < 0:
-            raise InvalidLikelihoodError("spin similarities must be finite and >= 0")
-        sim = np.maximum(sim, 1e-3)  # as fine_likelihood's floor: no image rules a heading out
-        predicted = predict_heading(self._heading, layout, turn, hp)
-        weighed = lik.copy()
-        weighed[:, layout.places] *= consistency(predicted, sim, layout, hp)
-        return weighed, (predicted, sim)
 
     def _advance(self, v: float, dt: float) -> FloatArray:
         """Per-edge advance (images) from ``v`` (m/s) and ``dt`` (s), on a log grid."""

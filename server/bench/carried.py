@@ -9,8 +9,8 @@ fault: in the simulated apartment a tour of three places, the robot carried 0.8 
 first place's taught spot, facing west down the corridor. A tour of few places leaves the
 belief few places to weigh against the edges' images, and a start beside a place in a corridor
 that looks alike both ways tests how the robot finds which way to go: weighing the places by
-the heading kept at each (``tracker.heading``) arrived less often here than without it
-(docs/navigation.md section 3.1).
+the heading kept at each (an option since removed) arrived less often here than without it
+(docs/navigation.md section 6).
 
 Per seed: the outcome, the robot time and the distance from the goal at the end; in all: the
 arrivals, the wrong arrivals and the median time of the arrived trials.
@@ -91,7 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_set_argument(
         parser,
         "run the servers with this navigation setting changed (repeatable, as bench navigate's "
-        "--set): --set tracker.heading.enabled=true",
+        "--set): --set topometric.lock_fix_s=3.0",
     )
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument(

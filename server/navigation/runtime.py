@@ -78,7 +78,6 @@ class TourRuntime:
         # canonical indices of each location's spin images (they come first, in order)
         counts = [len(loc.image_ids) for loc in graph.locations]
         firsts = np.cumsum([0, *counts])
-        self.n_spin = int(firsts[-1])  # spin images in all: the first of canonical order
         self.spin_images = tuple(
             np.arange(firsts[k], firsts[k + 1], dtype=np.int64) for k in range(graph.n_locations)
         )
@@ -359,17 +358,8 @@ class TourRuntime:
         """Step ``tracker`` (:meth:`Tracker.step`) with one frame: the action executed since
         the last frame, the frame's similarities under every appearance model and the
         ``(K, n_fine)`` likelihoods made of them (:meth:`observe`, maybe weighed since), the
-        odometry (m/s, rad/s) over ``dt`` s; with the frame's familiarity and the places' spin
-        images' similarities (the locations' images come first in canonical order), for the
-        heading the tracker keeps at each place (not gathered while it keeps none)."""
-        spin = (
-            np.stack([np.asarray(s.image[: self.n_spin], dtype=np.float64) for s in sims])
-            if tracker.params.heading.enabled
-            else None
-        )
-        return tracker.step(
-            action, likelihood, v=v, w=w, dt=dt, familiarity=self.familiarity(sims), spin=spin
-        )
+        odometry (m/s, rad/s) over ``dt`` s; with the frame's familiarity."""
+        return tracker.step(action, likelihood, v=v, w=w, dt=dt, familiarity=self.familiarity(sims))
 
     def familiarity(self, sims: Sequence[Similarity]) -> float:
         """The frame's familiarity in [0, 1] for :meth:`Tracker.step`: its best error under
