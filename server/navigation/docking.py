@@ -527,6 +527,14 @@ class Docking:
         elif kind != ActionKind.DO_NOTHING and self.needs_approach:
             a.seconds, a.done, a.edge, a.dock_m, a.spot_checks = 0.0, False, None, 0.0, 0
             a.on_spot = False
+        elif (
+            kind != ActionKind.DO_NOTHING and self.waived and self.placing.phase in ("done", "off")
+        ):
+            # no round trip to come in by: each stay at the goal docks afresh. Kept, a place
+            # docking given up elsewhere let the belief alone say "arrived" 160 frames later
+            # (a robot 4 m from the office, the belief at it for four frames)
+            self.placing, a.on_spot = PlaceDocking(), False
+            self.spot.reset()
 
     # -- docking along the edge ----------------------------------------------------------------
 

@@ -10,6 +10,8 @@ from dataclasses import replace
 import pytest
 from navigation_testkit import B, D, observation, runtime
 
+from server.belief.model import Action
+from server.navigation.command import Command
 from server.navigation.docking import Docking
 from server.navigation.observation import Observation, ViewRequest, Views
 from server.vision.homing import ScaleResult
@@ -82,3 +84,23 @@ def test_a_goal_with_no_round_trip_is_docked_on_before_it_counts_as_arrived() ->
     came_in = Docking(rt, D)
     came_in.approach.edge = 0  # (an edge of the synthetic tour; D's own would do the same)
     assert came_in.place(obs) is None and came_in.placing.phase == "idle"
+
+
+def test_a_goal_with_no_round_trip_docks_afresh_after_the_robot_has_moved_on() -> None:
+    """Place docking at D given up (``off``) lets the belief's word stand while the robot
+    stays; once it has driven elsewhere, the next stay at D docks afresh (kept, the belief at
+    a dead-end office for four frames said "arrived" 4 m from it, 160 frames after a docking
+    given up in the corridor, ``bench carried`` seed 4). Standing still keeps the verdict."""
+    rt = runtime()
+    docking = Docking(rt, D)
+    fits = {int(i): LINED_UP for i in rt.spin_images[D]}
+    obs = observation(rt, goal=D, at_goal=True, views=Views(zoomed=fits, taught_zoomed=fits))
+    docking.placing.phase = "off"
+    assert docking.confirm(obs, placing=False) == (None, True)
+    docking.track(Command(0.0, 0.0, Action.do_nothing()), 0.1)
+    assert docking.placing.phase == "off"
+    docking.track(Command(0.2, 0.0, Action.navigate(0)), 0.1)
+    assert docking.placing.phase == "idle"
+    proposal = docking.place(obs)
+    assert proposal is not None and docking.placing.phase != "idle"
+    assert docking.confirm(obs, placing=True) == (None, False)
