@@ -524,15 +524,19 @@ class Docking:
             # taught by hand): still there. Starting again sent a robot 0.1 m from the goal
             # out on its round trip, over and over
             pass
-        elif kind != ActionKind.DO_NOTHING and self.needs_approach:
+        elif kind != ActionKind.DO_NOTHING:
+            self._moved_on()
+
+    def _moved_on(self) -> None:
+        """The robot drove other than into the goal: the approach starts again; a goal with no
+        round trip to come in by docks afresh at its next stay. Kept, a place docking given up
+        elsewhere let the belief alone say "arrived" 160 frames later (a robot 4 m from the
+        office, the belief at it for four frames)."""
+        a = self.approach
+        if self.needs_approach:
             a.seconds, a.done, a.edge, a.dock_m, a.spot_checks = 0.0, False, None, 0.0, 0
             a.on_spot = False
-        elif (
-            kind != ActionKind.DO_NOTHING and self.waived and self.placing.phase in ("done", "off")
-        ):
-            # no round trip to come in by: each stay at the goal docks afresh. Kept, a place
-            # docking given up elsewhere let the belief alone say "arrived" 160 frames later
-            # (a robot 4 m from the office, the belief at it for four frames)
+        elif self.waived and self.placing.phase in ("done", "off"):
             self.placing, a.on_spot = PlaceDocking(), False
             self.spot.reset()
 
