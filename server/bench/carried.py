@@ -123,7 +123,7 @@ def _trial(
     from robot_client.sim import SimulatedRobot, SimWorld, load_plan
     from robot_client.sim.world import Pose
     from robot_client.trial import run_trial
-    from server.bench.nav_sweep import tracer
+    from server.bench.nav_sweep import tracer, write_trace
     from server.process import ADMIN, start_server
 
     plan = load_plan(scenario.plan)
@@ -153,9 +153,7 @@ def _trial(
         finally:
             server.stop()
     if args.trace is not None:
-        args.trace.mkdir(parents=True, exist_ok=True)
-        lines = "".join(json.dumps(r) + "\n" for r in trace)
-        (args.trace / f"seed_{seed}.jsonl").write_text(lines)
+        write_trace(args.trace / f"seed_{seed}.jsonl", trace)
     return {
         "seed": seed,
         "state": result.state,

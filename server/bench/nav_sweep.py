@@ -215,9 +215,7 @@ class Worker:
             evidence = self._keep_recording(client, name, spec, result.success)
         if self.config.trace is not None:
             folder = Path(self.config.trace) / _slug(plan.name) / spec.condition
-            folder.mkdir(parents=True, exist_ok=True)
-            lines = "".join(json.dumps(r) + "\n" for r in trace)
-            (folder / f"trial_{spec.trial:03d}.jsonl").write_text(lines)
+            write_trace(folder / f"trial_{spec.trial:03d}.jsonl", trace)
         return {
             "plan_index": spec.plan,
             "plan": plan.name,
@@ -273,6 +271,13 @@ def keep_database(db: Path, out: Path) -> None:
 
 def _slug(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name)
+
+
+def write_trace(path: Path, rows: list[dict[str, Any]]) -> None:
+    """Write a trial's trace (the rows of :func:`tracer`) to ``path``, one JSON line per step,
+    making its folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
 def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callable[[int, Any], None]:
