@@ -331,6 +331,7 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
             on_the_way=lambda: shot(page, folder, "robot_teach_drive.png", show=arrows),
         )
         name_place(page, SECOND)
+        taught = robot.pose  # where the place was named: its spin turns on this spot
         wait_for("the spin", lambda: spin_of(state())[0] == SECOND, 5.0, seen=state)
         time.sleep(2.0)
         shot(page, folder, "robot_teach_spin.png")
@@ -370,10 +371,12 @@ def test_a_tour_taught_by_driving_from_the_dashboard_then_go_to_a_place(
         mark("arrived")
         task = state().navigation.task
         p = robot.pose
-        off = math.hypot(p.x - second.x, p.y - second.y)
+        off = math.hypot(p.x - taught.x, p.y - taught.y)
         shot(page, folder, "robot_goto_arrived.png", show=page.get_by_text("arrived after").first)
-    assert task is not None and task.state == "arrived", (task, ra.lines[-10:])
-    assert off <= SUCCESS_RADIUS_M, (off, p)
+    # what the robot did, to read a failure by: the place as taught, the task, the commands
+    went = (f"{SECOND} taught at {taught}, arrived at {p}", task, ra.agent.stats, ra.lines[-10:])
+    assert task is not None and task.state == "arrived", went
+    assert off <= SUCCESS_RADIUS_M, (off, *went)
     assert not ra.agent.stats.late or ra.agent.stats.late < 10, ra.agent.stats
     # a guard against a hang, not a speed target
     assert time.monotonic() - started < 600
