@@ -332,7 +332,10 @@ def _exit_on_sigterm(signum: int, frame: object) -> None:
 
 
 def _serve(config: SweepConfig, tasks: Any, results: Any) -> None:
-    """A worker process: run the trials it is given until it gets ``None``."""
+    """A worker process: run the trials it is given until it gets ``None``; its last word
+    (the seconds spent teaching) comes once its server and homes are closed, so the sweep
+    that waits for it never stops a worker midway through closing (a SIGTERM then left
+    its scratch server running, with no parent)."""
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     with Worker(config) as worker:
         while True:
@@ -344,7 +347,8 @@ def _serve(config: SweepConfig, tasks: Any, results: Any) -> None:
             except Exception:
                 results.put(("error", spec, traceback.format_exc()))
                 return
-        results.put(("teach_s", None, worker.teach_s))
+        teach_s = worker.teach_s
+    results.put(("teach_s", None, teach_s))
 
 
 def run_trials(
@@ -401,7 +405,8 @@ def run_trials(
             if on_row:
                 on_row(payload)
     finally:
-        for p in procs:
+        for p in procs:  # done: each has closed and is on its way out; else stop them now
+            p.join(timeout=30 if finished == n else 0)
             if p.is_alive():
                 p.terminate()
         for p in procs:

@@ -160,3 +160,44 @@ def test_summary_counts_successes_causes_and_path_ratios() -> None:
     assert s["p90_path_ratio"] == pytest.approx(np.percentile([1.0, 1.1, 1.2, 1.3, 2.0], 90))
     assert s["failures_by_cause"] == {"wrong place": 1, "timeout": 1}
     assert s["failures_by_behaviour"] == {"search": 2}
+
+
+def test_a_worker_says_it_is_done_only_once_its_server_and_homes_are_closed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The sweep lets a worker go on its last word (the seconds spent teaching): said before
+    the worker closed, a SIGTERM from the sweep caught it midway through closing and left its
+    scratch server running with no parent. The worker here stands in for the real one (a
+    server and the simulator), recording when it closes."""
+    import queue
+
+    from server.bench import nav_sweep
+
+    said: list[str] = []
+
+    class Worker:
+        teach_s = 1.5
+
+        def __init__(self, config: object) -> None:
+            pass
+
+        def __enter__(self) -> Worker:
+            return self
+
+        def __exit__(self, *exc: object) -> None:
+            said.append("closed")
+
+        def run(self, spec: object) -> dict[str, object]:
+            return {"trial": spec}
+
+    class Results:
+        def put(self, item: tuple[str, object, object]) -> None:
+            said.append(item[0])
+
+    tasks: queue.Queue[object] = queue.Queue()
+    for item in (3, None):
+        tasks.put(item)
+    monkeypatch.setattr(nav_sweep, "Worker", Worker)
+    monkeypatch.setattr(nav_sweep.signal, "signal", lambda *a: None)  # not this process's
+    nav_sweep._serve(None, tasks, Results())  # type: ignore[arg-type]
+    assert said == ["row", "closed", "teach_s"]
