@@ -43,11 +43,12 @@ def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_worke
     two = bench(
         tmp_path, "two", "--plan", str(PLAN), "--condition", "same", "moved", "--workers", "2"
     )
+    trace = tmp_path / "trace"
     alone = bench(
         tmp_path,
         "alone",
         *("--plan", str(PLAN), "--condition", "moved", "--only", "0"),
-        *("--record", str(every), "--record-all"),
+        *("--record", str(every), "--record-all", "--trace", str(trace)),
     )
 
     # trial for trial, to the robot microsecond and millimetre (recording changes nothing)
@@ -74,6 +75,12 @@ def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_worke
     assert all(not r["success"] for r in kept) and len(kept) == 4 - pooled["successes"]
     assert one["record"] == {"folder": str(evidence), "all": False, "kept": len(kept)}
     (row,) = alone["rows"]
+    # its trace (recorded and traced, the trial went as it did untraced: compared above): one
+    # line per step, with the judge's truth and the command
+    lines = (trace / "two_rooms" / "moved" / "trial_000.jsonl").read_text().splitlines()
+    steps = [json.loads(line) for line in lines]
+    assert [s["step"] for s in steps] == list(range(1, row["steps"] + 1))
+    assert {"pose", "action", "behaviour", "v", "w", "top", "path"} <= steps[0].keys()
     assert row["recording"] == str(every / "two_rooms" / "moved" / "trial_000.mcap")
     assert row["recording_db"] == str(every / "two_rooms.sqlite")
     from server.recording.reader import read_recording
