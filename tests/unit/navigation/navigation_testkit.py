@@ -18,6 +18,7 @@ from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams, TourRuntime
 from server.navigation.command import Command, Proposal
 from server.navigation.observation import Observation, Outcome, Views
+from server.navigation.pathtrack import PathEstimate
 from server.policy.voting import Decision
 from server.vision.features import extract
 from server.vision.index import Similarity
@@ -166,3 +167,37 @@ WALLS = [  # a room 4 x 3 m with a cupboard
     (3.0, 2.2, 3.6, 2.2),
     (3.0, 2.2, 3.0, 3.0),
 ]
+
+
+def path_estimate(
+    *,
+    edge: int = 0,
+    along: float = 0.5,
+    lateral: float = 0.0,
+    heading: float = 0.0,
+    sigma_along: float = 0.02,
+    locked: bool = True,
+    since_fix_s: float = 0.0,
+    image: int = 0,
+    index: int = 0,
+    length_m: float = 5.0,
+) -> PathEstimate:
+    """A path tracker's estimate on ``edge`` (an edge running straight along +x), ``along``
+    metres along it and ``lateral`` to its left; standard deviations 0.02 m across, 0.01 rad."""
+    return PathEstimate(
+        edge=edge,
+        pose=np.array([along, lateral, heading]),
+        cov=np.diag([sigma_along**2, 0.02**2, 0.01**2]),
+        along_m=along,
+        lateral_m=lateral,
+        heading_error=heading,
+        sigma_lateral=0.02,
+        sigma_along=sigma_along,
+        sigma_heading=0.01,
+        locked=locked,
+        fixes=2,
+        image=image,
+        index=index,
+        length_m=length_m,
+        since_fix_s=since_fix_s,
+    )

@@ -9,30 +9,14 @@ import math
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
+from navigation_testkit import path_estimate
 
 from server.navigation.pathtrack import PathEstimate, path_likelihood
 
 
 def estimate(along_m: float, sigma_along: float, *, locked: bool = True) -> PathEstimate:
     """A path estimate on edge 0 at ``along_m`` metres (the rest does not matter here)."""
-    return PathEstimate(
-        edge=0,
-        pose=np.zeros(3),
-        cov=np.eye(3) * 0.01,
-        along_m=along_m,
-        lateral_m=0.0,
-        heading_error=0.0,
-        sigma_lateral=0.05,
-        sigma_along=sigma_along,
-        sigma_heading=0.02,
-        locked=locked,
-        fixes=1,
-        image=0,
-        index=0,
-        length_m=5.0,
-        since_fix_s=0.0,
-        chained=False,
-    )
+    return path_estimate(along=along_m, sigma_along=sigma_along, locked=locked)
 
 
 def naive(est: PathEstimate, first: int, along: np.ndarray, n_fine: int, ratio: float) -> list:

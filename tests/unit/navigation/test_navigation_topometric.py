@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from navigation_testkit import GRAPH, A, B, C, observation, runtime
+from navigation_testkit import GRAPH, A, B, C, observation, path_estimate, runtime
 from vision_testkit import scene
 
 from server.belief.model import Action, ActionKind
@@ -36,22 +36,16 @@ def estimate(
     """The tracker's estimate on ``edge`` (the synthetic edges run straight along +x)."""
     path = rt.paths[edge]
     k = path.image_at(along)
-    return PathEstimate(
+    return path_estimate(
         edge=edge,
-        pose=np.array([along, lateral, heading]),
-        cov=np.diag([0.02**2, 0.02**2, 0.01**2]),
-        along_m=along,
-        lateral_m=lateral,
-        heading_error=heading,
-        sigma_lateral=0.02,
-        sigma_along=0.02,
-        sigma_heading=0.01,
+        along=along,
+        lateral=lateral,
+        heading=heading,
         locked=locked,
-        fixes=2,
+        since_fix_s=since_fix_s,
         image=rt.edge_image(edge, k),
         index=k,
         length_m=path.length,
-        since_fix_s=since_fix_s,
     )
 
 
