@@ -170,7 +170,7 @@ class Worker:
     def _tour_database(self, plan: int) -> Path:
         """Where the database a plan's recordings replay against is kept (--record)."""
         assert self.config.record is not None
-        return Path(self.config.record) / f"{_slug(self.plans[plan].name)}.sqlite"
+        return Path(self.config.record) / f"{slug(self.plans[plan].name)}.sqlite"
 
     def world(self, plan: int, condition: str) -> Any:
         key = (plan, condition)
@@ -214,7 +214,7 @@ class Worker:
             )
             evidence = self._keep_recording(client, name, spec, result.success)
         if self.config.trace is not None:
-            folder = Path(self.config.trace) / _slug(plan.name) / spec.condition
+            folder = Path(self.config.trace) / slug(plan.name) / spec.condition
             write_trace(folder / f"trial_{spec.trial:03d}.jsonl", trace)
         return {
             "plan_index": spec.plan,
@@ -243,7 +243,7 @@ class Worker:
             time.sleep(0.05)
         if not listed:
             return {"recording": None, "recording_db": None}
-        folder = Path(config.record) / _slug(self.plans[spec.plan].name) / spec.condition
+        folder = Path(config.record) / slug(self.plans[spec.plan].name) / spec.condition
         out = folder / f"trial_{spec.trial:03d}.mcap"
         folder.mkdir(parents=True, exist_ok=True)
         out.write_bytes(client.recording(robot, listed[0].name))
@@ -269,7 +269,8 @@ def keep_database(db: Path, out: Path) -> None:
     part.replace(out)
 
 
-def _slug(name: str) -> str:
+def slug(name: str) -> str:
+    """A plan's name as a file or folder name (every character not a letter or digit: _)."""
     return "".join(c if c.isalnum() else "_" for c in name)
 
 

@@ -1,0 +1,219 @@
+"""``python -m server.bench.nav_traces TRACE_DIR RESULT.json [--json OUT]``: what the path
+tracker's locks did in a traced ``bench navigate`` run (``--trace TRACE_DIR --json
+RESULT.json``), judged by the simulator's truth that the trace carries (each frame's distance
+from the tracked edge's taught path, ``path.true_error``):
+
+* locks let go: on the path (within :data:`ON_PATH_M`), off it (beyond :data:`OFF_PATH_M`) or
+  between, by why (:func:`why_let_go`), and the frames and behaviours until the next lock;
+* locks taken: where, whether the robot was turning at a place searching for the edge then
+  (RotateAndFindEdge, the estimate within :data:`AT_PLACE_M` of the edge's start), and how
+  many of each in trials that failed;
+* every false arrival (the task said "arrived" away from the goal): the tracker's state at
+  the end.
+
+The figures of docs/navigation.md section 4 that count locks come from this command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from server.bench.nav_sweep import slug
+from server.navigation.pathtrack import TopometricParams
+
+ON_PATH_M = 0.3
+"""A lock within this of the tracked edge's taught path (true pose) is on the path, m."""
+OFF_PATH_M = 0.6
+"""A lock further than this from the tracked edge's taught path is off it, m."""
+AT_PLACE_M = 0.3
+"""A lock taken while searching within this of the edge's start counts as at the place, m."""
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One traced trial: its key (home, condition, trial), outcome and frames."""
+
+    plan: str
+    condition: str
+    trial: int
+    success: bool
+    state: str
+    distance_m: float
+    rows: list[dict[str, Any]]
+
+
+def where(error: float | None) -> str:
+    """``"on"``, ``"off"`` or ``"near"`` the path for a true distance from it (m)."""
+    if error is None:
+        return "near"
+    if error <= ON_PATH_M:
+        return "on"
+    return "off" if error > OFF_PATH_M else "near"
+
+
+def locked(row: dict[str, Any]) -> bool:
+    path = row["path"]
+    return bool(path and path["locked"])
+
+
+def why_let_go(before: dict[str, Any], after: dict[str, Any], p: TopometricParams) -> str:
+    """Why the lock of frame ``before`` is gone at frame ``after``: ``"no edge"`` (nothing
+    tracked), ``"another edge"``, ``"uncertain"`` (a standard deviation beyond the lock's
+    bounds: grown, or a fresh start), or ``"measurements"`` (within the bounds: no heading
+    measured for ``lock_fix_s``, or too few since the estimate moved)."""
+    path = after["path"]
+    if path is None:
+        return "no edge"
+    if path["edge"] != before["path"]["edge"]:
+        return "another edge"
+    _, lateral, heading = path["sd"]
+    if lateral > p.lock_lateral_m or heading > p.lock_heading_rad:
+        return "uncertain"
+    return "measurements"
+
+
+def let_go(trial: Trial, p: TopometricParams) -> list[dict[str, Any]]:
+    """Every lock let go in ``trial``: where the robot was, why, and until the next lock (on
+    any edge) the frames (``None``: never again) and the behaviours that ran."""
+    rows, out = trial.rows, []
+    for i in range(len(rows) - 1):
+        if not locked(rows[i]) or locked(rows[i + 1]):
+            continue
+        j = i + 1
+        while j < len(rows) and not locked(rows[j]):
+            j += 1
+        behaviours = Counter(r["behaviour"] for r in rows[i + 1 : j])
+        out.append(
+            {
+                "step": rows[i]["step"],
+                "where": where(rows[i]["path"]["true_error"]),
+                "why": why_let_go(rows[i], rows[i + 1], p),
+                "frames": j - i - 1 if j < len(rows) else None,
+                "behaviours": dict(behaviours),
+            }
+        )
+    return out
+
+
+def taken(trial: Trial) -> list[dict[str, Any]]:
+    """Every lock taken in ``trial`` (a locked frame after one not locked, or locked on
+    another edge): where, and whether the robot was searching at a place."""
+    rows, out = trial.rows, []
+    for i in range(1, len(rows)):
+        now, last = rows[i], rows[i - 1]
+        if not locked(now) or (locked(last) and last["path"]["edge"] == now["path"]["edge"]):
+            continue
+        searching = last["action"] == "rotate_and_find_edge" and now["path"]["along"] < AT_PLACE_M
+        out.append(
+            {
+                "step": now["step"],
+                "where": where(now["path"]["true_error"]),
+                "searching": searching,
+                "failed_trial": not trial.success,
+            }
+        )
+    return out
+
+
+def false_arrival(trial: Trial) -> dict[str, Any] | None:
+    """The tracker's state where ``trial`` said "arrived" away from the goal, else ``None``."""
+    if trial.state != "arrived" or trial.success or not trial.rows:
+        return None
+    k = len(trial.rows) - 1
+    while k > 0 and trial.rows[k]["behaviour"] == "stand":
+        k -= 1
+    row = trial.rows[k]
+    path = row["path"]
+    return {
+        "trial": f"{trial.plan} / {trial.condition} / {trial.trial}",
+        "distance_m": round(trial.distance_m, 2),
+        "behaviour": row["behaviour"],
+        "reason": row["reason"],
+        "locked": bool(path and path["locked"]),
+        "along_m": None if path is None else path["along"],
+        "sd_along_m": None if path is None else path["sd"][0],
+        "true_error_m": None if path is None else path["true_error"],
+    }
+
+
+def load(trace_dir: Path, result: dict[str, Any]) -> list[Trial]:
+    """The traced trials of a ``bench navigate`` result (those with a trace file)."""
+    trials = []
+    for group in result.get("results") or [result]:
+        for row in group["rows"]:
+            file = (
+                trace_dir / slug(row["plan"]) / row["condition"] / f"trial_{row['trial']:03d}.jsonl"
+            )
+            if not file.exists():
+                continue
+            frames = [json.loads(line) for line in file.read_text().splitlines() if line]
+            trials.append(
+                Trial(
+                    row["plan"],
+                    row["condition"],
+                    row["trial"],
+                    bool(row["success"]),
+                    row["state"],
+                    float(row["distance_m"]),
+                    frames,
+                )
+            )
+    return trials
+
+
+def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str, Any]:
+    """The counts this command prints, as a dictionary (its ``--json``); ``p``: the lock's
+    bounds (the defaults when ``None``)."""
+    p = TopometricParams() if p is None else p
+    gone = [x for t in trials for x in let_go(t, p)]
+    took = [x for t in trials for x in taken(t)]
+    again: Counter[str] = Counter()
+    for x in gone:
+        if x["where"] == "on":
+            again.update(x["behaviours"])
+    return {
+        "trials": len(trials),
+        "on_path_m": ON_PATH_M,
+        "off_path_m": OFF_PATH_M,
+        "let_go": {
+            f"{w} / {why}": n
+            for (w, why), n in sorted(Counter((x["where"], x["why"]) for x in gone).items())
+        },
+        "frames_to_lock_again_after_on_path": sum(
+            x["frames"] for x in gone if x["where"] == "on" and x["frames"] is not None
+        ),
+        "behaviours_until_locked_again_after_on_path": dict(again.most_common()),
+        "taken": {
+            f"{w} / {'searching at a place' if s else 'otherwise'}": {
+                "all": n,
+                "in failed trials": sum(
+                    1 for x in took if (x["where"], x["searching"]) == (w, s) and x["failed_trial"]
+                ),
+            }
+            for (w, s), n in sorted(Counter((x["where"], x["searching"]) for x in took).items())
+        },
+        "false_arrivals": [a for t in trials if (a := false_arrival(t)) is not None],
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m server.bench.nav_traces", description=__doc__)
+    ap.add_argument("trace_dir", type=Path, help="the --trace folder of a bench navigate run")
+    ap.add_argument("result", type=Path, help="the --json file of the same run")
+    ap.add_argument("--json", type=Path, default=None, help="also write the counts here")
+    args = ap.parse_args(argv)
+    trials = load(args.trace_dir, json.loads(args.result.read_text()))
+    if not trials:
+        ap.error(f"no trace of any trial of {args.result} under {args.trace_dir}")
+    out = summary(trials)
+    print(json.dumps(out, indent=2))
+    if args.json is not None:
+        args.json.write_text(json.dumps(out, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

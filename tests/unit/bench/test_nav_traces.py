@@ -1,0 +1,139 @@
+"""``python -m server.bench.nav_traces``: the path tracker's locks counted from a traced
+``bench navigate`` run, on synthetic traces whose every count is known."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from server.bench.nav_traces import load, main, summary
+
+
+def frame(step: int, *, behaviour: str = "follow", action: str = "navigate", path=None) -> dict:
+    return {
+        "step": step,
+        "behaviour": behaviour,
+        "action": action,
+        "reason": behaviour,
+        "path": path,
+    }
+
+
+def tracked(edge: int, along: float, error: float, *, locked: bool, sd=(0.05, 0.05, 0.02)) -> dict:
+    return {"edge": edge, "along": along, "sd": list(sd), "locked": locked, "true_error": error}
+
+
+def write(root: Path, plan: str, condition: str, trial: int, frames: list[dict]) -> None:
+    folder = root / plan.replace(" ", "_") / condition
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"trial_{trial:03d}.jsonl").write_text("".join(json.dumps(f) + "\n" for f in frames))
+
+
+def row(plan: str, trial: int, *, success: bool, state: str, distance: float) -> dict[str, Any]:
+    return {
+        "plan": plan,
+        "condition": "same",
+        "trial": trial,
+        "success": success,
+        "state": state,
+        "distance_m": distance,
+    }
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> tuple[Path, Path]:
+    """Two traced trials of 'office floor' and one without a trace."""
+    lost = [
+        frame(1, behaviour="explore", action="explore"),
+        # locked while searching at the place, 1 m off the path: taken off it, searching
+        frame(
+            2,
+            behaviour="search",
+            action="rotate_and_find_edge",
+            path=tracked(0, 0.0, 1.0, locked=False),
+        ),
+        frame(3, path=tracked(0, 0.1, 1.0, locked=True)),
+        frame(4, path=tracked(0, 0.2, 1.0, locked=True)),
+        # let go off the path within the lock's bounds: for want of measurements
+        frame(
+            5,
+            behaviour="search",
+            action="rotate_and_find_edge",
+            path=tracked(0, 0.2, 1.0, locked=False),
+        ),
+        frame(
+            6,
+            behaviour="search",
+            action="rotate_and_find_edge",
+            path=tracked(0, 0.2, 1.0, locked=False),
+        ),
+        # locked on the path while driving: taken on it, otherwise
+        frame(7, path=tracked(0, 2.0, 0.1, locked=True)),
+        # let go on the path, uncertain, never again
+        frame(
+            8,
+            behaviour="settle",
+            action="do_nothing",
+            path=tracked(0, 2.0, 0.1, locked=False, sd=(0.5, 0.6, 1.0)),
+        ),
+        frame(
+            9,
+            behaviour="settle",
+            action="do_nothing",
+            path=tracked(0, 2.0, 0.1, locked=False, sd=(0.5, 0.6, 1.0)),
+        ),
+    ]
+    wrong = [
+        frame(1, path=tracked(1, 3.0, 0.05, locked=True)),
+        frame(2, path=tracked(1, 3.1, 0.05, locked=True)),
+        frame(3, behaviour="stand", action="do_nothing", path=tracked(1, 3.1, 0.05, locked=True)),
+    ]
+    write(tmp_path / "trace", "office floor", "same", 0, lost)
+    write(tmp_path / "trace", "office floor", "same", 1, wrong)
+    result = {
+        "results": [
+            {
+                "rows": [
+                    row("office floor", 0, success=False, state="underway", distance=5.0),
+                    row("office floor", 1, success=False, state="arrived", distance=2.5),
+                    row("office floor", 2, success=True, state="arrived", distance=0.1),
+                ]
+            }
+        ]
+    }
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    return tmp_path / "trace", tmp_path / "result.json"
+
+
+def test_locks_let_go_and_taken_are_counted_where_and_why(run: tuple[Path, Path]) -> None:
+    trace, result = run
+    trials = load(trace, json.loads(result.read_text()))
+    assert [t.trial for t in trials] == [0, 1]  # trial 2 has no trace
+    out = summary(trials)
+    assert out["let_go"] == {"off / measurements": 1, "on / uncertain": 1}
+    # only a lock let go on the path counts toward locking again; this one never did
+    assert out["frames_to_lock_again_after_on_path"] == 0
+    assert out["behaviours_until_locked_again_after_on_path"] == {"settle": 2}
+    assert out["taken"] == {
+        "off / searching at a place": {"all": 1, "in failed trials": 1},
+        "on / otherwise": {"all": 1, "in failed trials": 1},  # (a trace's first frame: none)
+    }
+    [false] = out["false_arrivals"]
+    assert false["trial"] == "office floor / same / 1" and false["distance_m"] == 2.5
+    assert false["behaviour"] == "follow" and false["locked"] and false["along_m"] == 3.1
+
+
+def test_the_command_prints_and_saves_the_counts_and_refuses_a_run_without_traces(
+    run: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace, result = run
+    main([str(trace), str(result), "--json", str(tmp_path / "out.json")])
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((tmp_path / "out.json").read_text())
+    assert printed["trials"] == 2
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "nowhere"), str(result)])
+    assert "no trace of any trial" in capsys.readouterr().err
