@@ -5,6 +5,8 @@ from the tracked edge's taught path, ``path.true_error``):
 
 * locks let go: on the path (within :data:`ON_PATH_M`), off it (beyond :data:`OFF_PATH_M`) or
   between, by why (:func:`why_let_go`), and the frames and behaviours until the next lock;
+  for those let go for want of measurements, on the path against off it, the medians of what
+  the lock's last frame held (:data:`LET_GO_SIGNS`);
 * locks taken: where, whether the robot was turning at a place searching for the edge then
   (RotateAndFindEdge, the estimate within :data:`AT_PLACE_M` of the edge's start), and how
   many of each in trials that failed;
@@ -21,6 +23,8 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from server.bench.nav_sweep import slug
 from server.navigation.pathtrack import TopometricParams
@@ -87,16 +91,31 @@ def let_go(trial: Trial, p: TopometricParams) -> list[dict[str, Any]]:
         while j < len(rows) and not locked(rows[j]):
             j += 1
         behaviours = Counter(r["behaviour"] for r in rows[i + 1 : j])
+        path = rows[i]["path"]
+        k = i  # the first frame of this lock
+        while k > 0 and locked(rows[k - 1]) and rows[k - 1]["path"]["edge"] == path["edge"]:
+            k -= 1
+        name, mass = rows[i]["top"][0] if rows[i].get("top") else ("", 0.0)
         out.append(
             {
                 "step": rows[i]["step"],
-                "where": where(rows[i]["path"]["true_error"]),
+                "where": where(path["true_error"]),
                 "why": why_let_go(rows[i], rows[i + 1], p),
                 "frames": j - i - 1 if j < len(rows) else None,
                 "behaviours": dict(behaviours),
+                "locked_frames": i - k + 1,
+                "lateral_m": abs(path["lateral"]),
+                "sd_along_m": path["sd"][0],
+                "gained_m": path["along"] - rows[k]["path"]["along"],
+                "belief_on_an_edge": mass if "->" in name else 0.0,
             }
         )
     return out
+
+
+LET_GO_SIGNS = ("locked_frames", "lateral_m", "sd_along_m", "gained_m", "belief_on_an_edge")
+"""What :func:`let_go` records of a lock's last frame, whose medians :func:`summary` compares
+between locks let go on the path and off it for want of measurements."""
 
 
 def taken(trial: Trial) -> list[dict[str, Any]]:
@@ -187,6 +206,11 @@ def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str,
             x["frames"] for x in gone if x["where"] == "on" and x["frames"] is not None
         ),
         "behaviours_until_locked_again_after_on_path": dict(again.most_common()),
+        "let_go_for_measurements_medians": {
+            w: {sign: round(float(np.median([x[sign] for x in group])), 3) for sign in LET_GO_SIGNS}
+            for w in ("on", "off")
+            if (group := [x for x in gone if (x["where"], x["why"]) == (w, "measurements")])
+        },
         "taken": {
             f"{w} / {'searching at a place' if s else 'otherwise'}": {
                 "all": n,

@@ -23,7 +23,14 @@ def frame(step: int, *, behaviour: str = "follow", action: str = "navigate", pat
 
 
 def tracked(edge: int, along: float, error: float, *, locked: bool, sd=(0.05, 0.05, 0.02)) -> dict:
-    return {"edge": edge, "along": along, "sd": list(sd), "locked": locked, "true_error": error}
+    return {
+        "edge": edge,
+        "along": along,
+        "lateral": 0.4,
+        "sd": list(sd),
+        "locked": locked,
+        "true_error": error,
+    }
 
 
 def write(root: Path, plan: str, condition: str, trial: int, frames: list[dict]) -> None:
@@ -117,6 +124,16 @@ def test_locks_let_go_and_taken_are_counted_where_and_why(run: tuple[Path, Path]
     # only a lock let go on the path counts toward locking again; this one never did
     assert out["frames_to_lock_again_after_on_path"] == 0
     assert out["behaviours_until_locked_again_after_on_path"] == {"settle": 2}
+    # the one lock let go for want of measurements: off the path, locked 2 frames, 0.1 m gained
+    assert out["let_go_for_measurements_medians"] == {
+        "off": {
+            "locked_frames": 2.0,
+            "lateral_m": 0.4,
+            "sd_along_m": 0.05,
+            "gained_m": 0.1,
+            "belief_on_an_edge": 0.0,
+        }
+    }
     assert out["taken"] == {
         "off / searching at a place": {"all": 1, "in failed trials": 1},
         "on / otherwise": {"all": 1, "in failed trials": 1},  # (a trace's first frame: none)
