@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from server.bench.nav_sweep import slug
+from server.bench.nav_table import groups
 from server.navigation.pathtrack import TopometricParams
 
 ON_PATH_M = 0.3
@@ -162,7 +163,7 @@ def false_arrival(trial: Trial) -> dict[str, Any] | None:
 def load(trace_dir: Path, result: dict[str, Any]) -> list[Trial]:
     """The traced trials of a ``bench navigate`` result (those with a trace file)."""
     trials = []
-    for group in result.get("results") or [result]:
+    for group in groups(result):
         for row in group["rows"]:
             file = (
                 trace_dir / slug(row["plan"]) / row["condition"] / f"trial_{row['trial']:03d}.jsonl"
@@ -190,6 +191,8 @@ def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str,
     p = TopometricParams() if p is None else p
     gone = [x for t in trials for x in let_go(t, p)]
     took = [x for t in trials for x in taken(t)]
+    took_all = Counter((x["where"], x["searching"]) for x in took)
+    took_failed = Counter((x["where"], x["searching"]) for x in took if x["failed_trial"])
     again: Counter[str] = Counter()
     for x in gone:
         if x["where"] == "on":
@@ -214,11 +217,9 @@ def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str,
         "taken": {
             f"{w} / {'searching at a place' if s else 'otherwise'}": {
                 "all": n,
-                "in failed trials": sum(
-                    1 for x in took if (x["where"], x["searching"]) == (w, s) and x["failed_trial"]
-                ),
+                "in failed trials": took_failed[(w, s)],
             }
-            for (w, s), n in sorted(Counter((x["where"], x["searching"]) for x in took).items())
+            for (w, s), n in sorted(took_all.items())
         },
         "false_arrivals": [a for t in trials if (a := false_arrival(t)) is not None],
     }
