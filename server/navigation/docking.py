@@ -26,14 +26,14 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.model import Action, ActionKind
-from server.motion import navigate_command, rotate_command
+from server.motion import navigate_command, ray_angles, rotate_command
 from server.navigation.behaviours import goal_end, track_command
 from server.navigation.command import Command, Proposal
 from server.navigation.geometry import inverse, relative
 from server.navigation.observation import Observation, ViewRequest, Views
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate
-from server.navigation.pursuit import pursue
+from server.navigation.pursuit import heading_error, pursue
 from server.navigation.runtime import TourRuntime
 from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.navigation.tracking import move
@@ -156,6 +156,52 @@ class SpotFix:
         return carried
 
 
+def seen_further(
+    depth: npt.ArrayLike,
+    taught: npt.ArrayLike,
+    turn: float,
+    *,
+    fov_deg: float,
+    half_angle_rad: float,
+    max_range_m: float,
+) -> float | None:
+    """How much further the robot sees straight ahead than a taught profile did, m: the median,
+    over the rays of ``depth`` within ``half_angle_rad`` of straight ahead, of their range less
+    the taught range looking the same way (``turn``: the robot's heading less the taught
+    one's, rad; the robot's own offset is what is measured, so it is not corrected for):
+    interpolated between the two taught rays either side where both saw a surface, else that
+    of the nearest taught ray.
+    A ray that sees nothing (not finite, or beyond ``max_range_m``) where the taught one saw a
+    surface counts as ``inf`` further; taught rays that saw nothing are left out. ``None``
+    when fewer than three rays are left (the taught view saw nothing ahead: it cannot tell).
+
+    Both profiles ``(n,)`` and ``(m,)`` span ``fov_deg``, leftmost ray first."""
+    now = np.asarray(depth, dtype=np.float64)
+    was = np.asarray(taught, dtype=np.float64)
+    if len(now) < 2 or len(was) < 2:
+        return None
+    angles = ray_angles(len(now), fov_deg)
+    half = np.radians(fov_deg) / 2
+    step = 2 * half / (len(was) - 1)
+    # where each ray looks among the taught rays (taught ray i looks at half - i step):
+    # between two that saw a surface, their ranges interpolated; else the nearest one's
+    at = (half - (angles + turn)) / step
+    use = (np.abs(angles) <= half_angle_rad) & (at > -0.5) & (at < len(was) - 0.5)
+    seen = np.isfinite(was) & (was < max_range_m)
+    lo = np.clip(np.floor(at).astype(np.int64), 0, len(was) - 2)
+    f = np.clip(at - lo, 0.0, 1.0)
+    both = seen[lo] & seen[lo + 1]
+    nearest = np.clip(np.round(at).astype(np.int64), 0, len(was) - 1)
+    safe = np.where(seen, was, 0.0)
+    then = np.where(both, (1 - f) * safe[lo] + f * safe[lo + 1], was[nearest])
+    use &= both | seen[nearest]
+    if int(use.sum()) < 3:
+        return None
+    r = now[use]
+    further = np.where(np.isfinite(r) & (r < max_range_m), r - then[use], np.inf)
+    return float(np.median(further))
+
+
 def toward_spot(spot: npt.NDArray[np.float64], rt: TourRuntime) -> tuple[float, float]:
     """``(v, w)`` driving to ``spot`` (robot frame), slowly (``MotionParams.dock_v``, turning
     to face it first when it lies far to the side or behind)."""
@@ -209,6 +255,8 @@ class Approach:
     dock_m: float = 0.0  # metres of docking moves commanded since the approach began
     log_scales: list[float] = field(default_factory=list)  # docking's last few log scales
     spot_checks: int = 0  # frames held at the tracked end for the place's depth to tell
+    crept_m: float | None = None  # metres crept on from the tracked end (None: not creeping)
+    crept_there: bool = False  # the creep from the tracked end has ended: there
     on_spot: bool = False  # place docking put the robot on the taught spot (done by it)
 
     def docked_on_spot(self) -> None:
@@ -535,7 +583,7 @@ class Docking:
         a = self.approach
         if self.needs_approach:
             a.seconds, a.done, a.edge, a.dock_m, a.spot_checks = 0.0, False, None, 0.0, 0
-            a.on_spot = False
+            a.on_spot, a.crept_m, a.crept_there = False, None, False
         elif self.waived and self.placing.phase in ("done", "off"):
             self.placing, a.on_spot = PlaceDocking(), False
             self.spot.reset()
@@ -592,6 +640,8 @@ class Docking:
         est = obs.path
         if est is None or est.edge != edge:
             return None, False
+        if self.approach.crept_m is not None:
+            return self._creep_on(obs, est)
         if not est.locked:
             if obs.decision.action.kind != ActionKind.DO_NOTHING:
                 return None, False
@@ -616,13 +666,73 @@ class Docking:
             a.spot_checks += 1
             hold = Command(0.0, 0.0, Action.navigate(est.edge), est.image, "dock")
             return Proposal(hold, "at the end of the path: the place's depth profile?"), False
-        if spot is None or float(np.hypot(*spot)) <= SPOT_HANDOVER_M:
+        if spot is None:
+            return self._check_ahead(obs, est)
+        if float(np.hypot(*spot)) <= SPOT_HANDOVER_M:
             return None, True
         self.placing.start("scan")
         v, w = toward_spot(spot, self.rt)
         command = Command(v, w, Action.do_nothing(), None, "place-dock")
         why = f"the place's depth puts its taught spot {float(np.hypot(*spot)):.2f} m away"
         return Proposal(command, why), False
+
+    def _further(self, obs: Observation, est: PathEstimate) -> tuple[float | None, float]:
+        """What the depth profile sees straight ahead beyond what the profile taught on
+        arriving at the end of the tracked edge saw (:func:`seen_further`; ``None``: cannot
+        tell), and the turn (rad) that faces the robot the way it was taught to arrive."""
+        rt, tp = self.rt, self.p.topometric
+        k = rt.arrival[est.edge]
+        heading = float(rt.paths[est.edge].poses[k][2])
+        turn = heading_error(est.pose, heading)
+        taught = rt.taught_depth.get(rt.edge_image(est.edge, k))
+        if not tp.end_depth or obs.depth is None or taught is None:
+            return None, turn
+        further = seen_further(
+            obs.depth,
+            taught,
+            -turn,
+            fov_deg=tp.depth_fov_deg,
+            half_angle_rad=tp.end_depth_rad,
+            max_range_m=tp.scan_fit.max_range_m,
+        )
+        return further, turn
+
+    def _check_ahead(self, obs: Observation, est: PathEstimate) -> tuple[Proposal | None, bool]:
+        """At the end of the path by the tracker, the place's depth profiles finding no spot:
+        what the robot sees straight ahead against what was taught on arriving there
+        (``TopometricParams.end_depth``; the rays compared look the same way, whichever way
+        the robot faces: turning to face the taught way lost the lock of robots whose guide
+        had turned at the end). Further, it stands short of the spot and creeps on
+        (:meth:`_creep_on`); else, or when it cannot tell, arrived."""
+        further, _ = self._further(obs, est)
+        if further is None or further <= self.p.topometric.end_depth_m:
+            return None, True
+        self.approach.crept_m = 0.0
+        return self._creep_on(obs, est)
+
+    def _creep_on(self, obs: Observation, est: PathEstimate) -> tuple[Proposal | None, bool]:
+        """Creep on the way taught on arriving while the robot sees further ahead than was
+        taught at the spot; arrived once it does not (or cannot tell), or after the depth's
+        reach (``scan_fit.max_range_m``) of creeping, and there until the approach starts
+        again (the tracker, short by what it crept, would send it back to where it stopped)."""
+        a, tp, mp = self.approach, self.p.topometric, self.p.motion
+        if a.crept_there:
+            return None, True
+        further, turn = self._further(obs, est)
+        crept = a.crept_m or 0.0
+        if further is None or further <= tp.end_depth_m or crept >= tp.scan_fit.max_range_m:
+            a.crept_there = True
+            return None, True
+        v = max(mp.dock_v, tp.pursuit.min_v)
+        a.crept_m = crept + v * obs.dt  # as commanded, as docking counts its moves
+        w = float(np.clip(2.0 * turn, -tp.pursuit.max_w, tp.pursuit.max_w))
+        creep = Command(v, w, Action.navigate(est.edge), est.image, "dock")
+        seen = (
+            "nothing ahead where a surface was taught at the spot"
+            if not np.isfinite(further)
+            else f"{further:.2f} m further ahead than taught at the spot"
+        )
+        return Proposal(creep, f"short of the goal: sees {seen}"), False
 
     def _tracked_there(self, obs: Observation, edge: int) -> bool:
         """Whether the path tracker, locked on ``edge``, puts the robot at its end (within

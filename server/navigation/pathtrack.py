@@ -136,6 +136,16 @@ class TopometricParams:
       matched along the edge are evidence the engine's similarities alone do not carry (a
       place's spin images, looking down a corridor, matched every frame driven along it, and
       the belief stayed at the place for 3.5 m of driving). 1 turns it off.
+    * ``end_depth`` (True), ``end_depth_m`` (0.2 m), ``end_depth_rad`` (0.15 rad): at the end
+      of the edge into the goal by the tracker, where the place's depth profiles find no spot
+      (a corridor's), the robot compares what its depth profile sees straight ahead (the rays
+      within ``end_depth_rad``) with what the profile taught on arriving there saw, ray by ray
+      looking the same way (:func:`server.navigation.docking.seen_further`): seeing more
+      than ``end_depth_m`` further (or nothing where a surface was taught), it stands short of
+      the spot, whatever the tracker says, and creeps on until it sees what was taught, for
+      at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
+      can be metres off in a plain corridor with a standard deviation of centimetres (its
+      measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -183,6 +193,9 @@ class TopometricParams:
     path_evidence: float = 4.0
     arrive_m: float = 0.12
     arrive_stretch_m: float = 0.5
+    end_depth: bool = True
+    end_depth_m: float = 0.2
+    end_depth_rad: float = 0.15
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0
