@@ -37,6 +37,7 @@ from server.navigation.pursuit import (
     lookahead_point,
     lookahead_s,
     pursue,
+    steer_to,
     turn_to,
 )
 from server.navigation.runtime import TourRuntime
@@ -210,7 +211,7 @@ def track_command(
             # on the way taught meanwhile (standing still, the belief never got there when
             # the tracker's along was off)
             error = heading_error(est.pose, float(path.poses[-1, 2]))
-            w = float(np.clip(2.0 * error, -tp.pursuit.max_w, tp.pursuit.max_w))
+            w = steer_to(error, tp.pursuit)
             creep = Command(tp.pursuit.min_v, w, action, est.image, "follow")
             return creep, "at the end of the path: on until the next one"
         end = goal_end(rt, est)

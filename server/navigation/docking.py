@@ -33,7 +33,7 @@ from server.navigation.geometry import inverse, relative
 from server.navigation.observation import Observation, ViewRequest, Views
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate
-from server.navigation.pursuit import heading_error, pursue
+from server.navigation.pursuit import heading_error, pursue, steer_to
 from server.navigation.runtime import TourRuntime
 from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.navigation.tracking import move
@@ -725,7 +725,7 @@ class Docking:
             return None, True
         v = max(mp.dock_v, tp.pursuit.min_v)
         a.crept_m = crept + v * obs.dt  # as commanded, as docking counts its moves
-        w = float(np.clip(2.0 * turn, -tp.pursuit.max_w, tp.pursuit.max_w))
+        w = steer_to(turn, tp.pursuit)
         creep = Command(v, w, Action.navigate(est.edge), est.image, "dock")
         seen = (
             "nothing ahead where a surface was taught at the spot"

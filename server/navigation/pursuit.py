@@ -123,10 +123,16 @@ def pursue(
     return float(v), float(w)
 
 
+def steer_to(heading_error: float, params: PursuitParams) -> float:
+    """``w`` (rad/s) that brings the heading round by ``heading_error`` (rad, target minus
+    current): proportional (gain 2 per second), within ``params.max_w``."""
+    return float(np.clip(2.0 * heading_error, -params.max_w, params.max_w))
+
+
 def turn_to(heading_error: float, params: PursuitParams) -> tuple[float, float]:
     """``(0, w)``: turn on the spot to remove ``heading_error`` (rad, target minus current),
-    slowing as it comes into line."""
-    w = float(np.clip(2.0 * heading_error, -params.max_w, params.max_w))
+    slowing as it comes into line (:func:`steer_to`, at least 0.15 rad/s)."""
+    w = steer_to(heading_error, params)
     if 0 < abs(w) < 0.15:
         w = math.copysign(0.15, w)
     return 0.0, w
