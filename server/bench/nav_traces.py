@@ -11,7 +11,11 @@ from the tracked edge's taught path, ``path.true_error``):
   (RotateAndFindEdge, the estimate within :data:`AT_PLACE_M` of the edge's start), and how
   many of each in trials that failed;
 * every false arrival (the task said "arrived" away from the goal): the tracker's state at
-  the end.
+  the end;
+* with ``--plan`` (the run's plan files, for where their places were taught): how often the
+  belief's most likely state is a place while the robot turns on the spot and while it
+  drives, within :data:`NEAR_PLACE_M` of a place and further (:func:`turning`), and how far
+  from the place it searched at the robot stood when it took a lock searching there.
 
 The figures of docs/navigation.md section 4 that count locks come from this command."""
 
@@ -36,6 +40,19 @@ OFF_PATH_M = 0.6
 """A lock further than this from the tracked edge's taught path is off it, m."""
 AT_PLACE_M = 0.3
 """A lock taken while searching within this of the edge's start counts as at the place, m."""
+NEAR_PLACE_M = 1.5
+"""A robot within this of a place's taught spot (true pose) is near a place, m."""
+TURN_V = 0.02
+TURN_W = 0.2
+"""A frame whose command drives at most ``TURN_V`` m/s and turns at least ``TURN_W`` rad/s
+turns on the spot; one driving faster than ``DRIVE_V`` m/s drives."""
+DRIVE_V = 0.05
+SEARCH_FROM_M = (1.0, 2.0)
+"""The bounds (m) by which :func:`summary` counts locks taken searching at a place, by the
+robot's true distance from that place's taught spot."""
+
+Spots = dict[str, dict[str, tuple[float, float]]]
+"""Plan name -> place name -> where the place was taught (x, y; m)."""
 
 
 @dataclass(frozen=True)
@@ -119,9 +136,22 @@ LET_GO_SIGNS = ("locked_frames", "lateral_m", "sd_along_m", "gained_m", "belief_
 between locks let go on the path and off it for want of measurements."""
 
 
-def taken(trial: Trial) -> list[dict[str, Any]]:
+def place_distance(row: dict[str, Any], spots: dict[str, tuple[float, float]]) -> float | None:
+    """Metres from the frame's true pose to the taught spot of the place the belief holds
+    most likely, or ``None`` when that is not a place of ``spots``."""
+    top = row.get("top") or [("", 0.0)]
+    spot = spots.get(top[0][0])
+    if spot is None:
+        return None
+    return float(np.hypot(row["pose"][0] - spot[0], row["pose"][1] - spot[1]))
+
+
+def taken(
+    trial: Trial, spots: dict[str, tuple[float, float]] | None = None
+) -> list[dict[str, Any]]:
     """Every lock taken in ``trial`` (a locked frame after one not locked, or locked on
-    another edge): where, and whether the robot was searching at a place."""
+    another edge): where, whether the robot was searching at a place and, with the plan's
+    place ``spots``, how far from the one searched at (the belief's most likely place; m)."""
     rows, out = trial.rows, []
     for i in range(1, len(rows)):
         now, last = rows[i], rows[i - 1]
@@ -134,9 +164,70 @@ def taken(trial: Trial) -> list[dict[str, Any]]:
                 "where": where(now["path"]["true_error"]),
                 "searching": searching,
                 "failed_trial": not trial.success,
+                "place_m": None if not searching or spots is None else place_distance(now, spots),
             }
         )
     return out
+
+
+def turning(trial: Trial, spots: dict[str, tuple[float, float]]) -> Counter[tuple[str, str, bool]]:
+    """Frames of ``trial`` counted by motion (``"turning"`` on the spot or ``"driving"``, by the
+    command), ``"near"`` a place (within :data:`NEAR_PLACE_M` of one's taught spot, true pose)
+    or ``"far"``, and whether the belief's most likely state was a place then."""
+    out: Counter[tuple[str, str, bool]] = Counter()
+    xy = np.array(list(spots.values()), dtype=np.float64).reshape(-1, 2)
+    for row in trial.rows:
+        v, w = abs(row["v"]), abs(row["w"])
+        motion = "turning" if v <= TURN_V and w >= TURN_W else "driving" if v > DRIVE_V else None
+        if motion is None or not len(xy):
+            continue
+        near = np.min(np.hypot(*(xy - np.asarray(row["pose"][:2])).T)) <= NEAR_PLACE_M
+        out[(motion, "near" if near else "far", row["top"][0][0] in spots)] += 1
+    return out
+
+
+def read_spots(plans: list[Path]) -> Spots:
+    """Where each plan's places were taught, by plan name (the plan files' ``name`` and
+    ``places``)."""
+    out: Spots = {}
+    for file in plans:
+        plan = json.loads(file.read_text())
+        out[plan["name"]] = {p["name"]: (float(p["x"]), float(p["y"])) for p in plan["places"]}
+    return out
+
+
+def _by_place(trials: list[Trial], spots: Spots) -> dict[str, Any]:
+    """The counts :func:`summary` adds with the plans' place ``spots``."""
+    frames: Counter[tuple[str, str, bool]] = Counter()
+    for t in trials:
+        frames += turning(t, spots.get(t.plan, {}))
+    belief = {
+        f"{motion}, {near}": {
+            "frames": (n := frames[(motion, near, True)] + frames[(motion, near, False)]),
+            "belief_top_a_place": round(frames[(motion, near, True)] / n, 3) if n else None,
+        }
+        for motion in ("turning", "driving")
+        for near in ("near", "far")
+    }
+    lo, hi = SEARCH_FROM_M
+    bins = Counter()
+    failed = Counter()
+    for t in trials:
+        for x in taken(t, spots.get(t.plan, {})):
+            d = x["place_m"]
+            if d is None:
+                continue
+            key = f"< {lo} m" if d < lo else f"{lo}-{hi} m" if d < hi else f">= {hi} m"
+            bins[key] += 1
+            failed[key] += not t.success
+    return {
+        "near_place_m": NEAR_PLACE_M,
+        "belief_while": belief,
+        "locks_taken_searching_by_distance_from_the_place": {
+            k: {"all": bins[k], "in failed trials": failed[k]}
+            for k in (f"< {lo} m", f"{lo}-{hi} m", f">= {hi} m")
+        },
+    }
 
 
 def false_arrival(trial: Trial) -> dict[str, Any] | None:
@@ -185,9 +276,12 @@ def load(trace_dir: Path, result: dict[str, Any]) -> list[Trial]:
     return trials
 
 
-def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str, Any]:
+def summary(
+    trials: list[Trial], p: TopometricParams | None = None, spots: Spots | None = None
+) -> dict[str, Any]:
     """The counts this command prints, as a dictionary (its ``--json``); ``p``: the lock's
-    bounds (the defaults when ``None``)."""
+    bounds (the defaults when ``None``); ``spots`` (:func:`read_spots`): also the belief while
+    turning and the locks taken searching by the distance from the place (``by_place``)."""
     p = TopometricParams() if p is None else p
     gone = [x for t in trials for x in let_go(t, p)]
     took = [x for t in trials for x in taken(t)]
@@ -197,7 +291,7 @@ def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str,
     for x in gone:
         if x["where"] == "on":
             again.update(x["behaviours"])
-    return {
+    out = {
         "trials": len(trials),
         "on_path_m": ON_PATH_M,
         "off_path_m": OFF_PATH_M,
@@ -223,6 +317,9 @@ def summary(trials: list[Trial], p: TopometricParams | None = None) -> dict[str,
         },
         "false_arrivals": [a for t in trials if (a := false_arrival(t)) is not None],
     }
+    if spots is not None:
+        out["by_place"] = _by_place(trials, spots)
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -230,11 +327,28 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("trace_dir", type=Path, help="the --trace folder of a bench navigate run")
     ap.add_argument("result", type=Path, help="the --json file of the same run")
     ap.add_argument("--json", type=Path, default=None, help="also write the counts here")
+    ap.add_argument(
+        "--plan",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="the run's plan files: also count the belief while turning and the locks taken "
+        "searching by the robot's distance from the place (its true pose)",
+    )
     args = ap.parse_args(argv)
     trials = load(args.trace_dir, json.loads(args.result.read_text()))
     if not trials:
         ap.error(f"no trace of any trial of {args.result} under {args.trace_dir}")
-    out = summary(trials)
+    spots = None
+    if args.plan is not None:
+        try:
+            spots = read_spots(args.plan)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            ap.error(f"--plan: cannot read the places of {args.plan}: {exc}")
+        unknown = sorted({t.plan for t in trials} - set(spots))
+        if unknown:
+            ap.error(f"--plan: no plan named {', '.join(unknown)}; pass the run's plan files")
+    out = summary(trials, spots=spots)
     print(json.dumps(out, indent=2))
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=2) + "\n")

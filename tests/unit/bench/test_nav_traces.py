@@ -154,3 +154,56 @@ def test_the_command_prints_and_saves_the_counts_and_refuses_a_run_without_trace
     with pytest.raises(SystemExit):
         main([str(tmp_path / "nowhere"), str(result)])
     assert "no trace of any trial" in capsys.readouterr().err
+
+
+def at(step: int, x: float, v: float, w: float, top: str, **kw: Any) -> dict:
+    """A frame with the true pose (``x``, 0), the command and the belief's top state."""
+    return frame(step, **kw) | {"pose": [x, 0.0, 0.0], "v": v, "w": w, "top": [[top, 0.9]]}
+
+
+def test_with_the_plans_the_belief_while_turning_and_the_search_locks_are_counted_by_place(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frames = [
+        at(1, 0.5, 0.0, 0.5, "hall"),  # turning near the hall, believed at it
+        at(2, 3.0, 0.0, 0.5, "hall"),  # turning 3 m from it, believed at it
+        at(3, 3.0, 0.0, 0.5, "hall -> den"),  # turning far, believed on an edge
+        at(4, 3.0, 0.01, 0.1, "hall"),  # too slow a turn: not counted
+        at(5, 3.0, 0.3, 0.0, "hall -> den"),  # driving far, on an edge
+        # a lock taken searching at the hall 2.5 m from its spot, in a trial that failed
+        at(
+            6,
+            2.5,
+            0.0,
+            0.5,
+            "hall",
+            behaviour="search",
+            action="rotate_and_find_edge",
+            path=tracked(0, 0.0, 1.0, locked=False),
+        ),
+        at(7, 2.5, 0.0, 0.5, "hall", path=tracked(0, 0.1, 1.0, locked=True)),
+    ]
+    write(tmp_path / "trace", "flat", "same", 0, frames)
+    result = {"results": [{"rows": [row("flat", 0, success=False, state="underway", distance=4)]}]}
+    (tmp_path / "result.json").write_text(json.dumps(result))
+    plan = {"name": "flat", "places": [{"name": "hall", "x": 0.0, "y": 0.0}]}
+    (tmp_path / "flat.json").write_text(json.dumps(plan))
+    trials = load(tmp_path / "trace", result)
+    out = summary(trials, spots={"flat": {"hall": (0.0, 0.0)}})["by_place"]
+    assert out["belief_while"]["turning, near"] == {"frames": 1, "belief_top_a_place": 1.0}
+    # frames 2, 3, 6 and 7 turn 2.5-3 m from the hall; three of them believed at it
+    assert out["belief_while"]["turning, far"] == {"frames": 4, "belief_top_a_place": 0.75}
+    assert out["belief_while"]["driving, far"] == {"frames": 1, "belief_top_a_place": 0.0}
+    assert out["belief_while"]["driving, near"] == {"frames": 0, "belief_top_a_place": None}
+    assert out["locks_taken_searching_by_distance_from_the_place"][">= 2.0 m"] == {
+        "all": 1,
+        "in failed trials": 1,
+    }
+    assert summary(trials).get("by_place") is None  # without the plans: not counted
+    trace, res = str(tmp_path / "trace"), str(tmp_path / "result.json")
+    main([trace, res, "--plan", str(tmp_path / "flat.json")])
+    assert "by_place" in json.loads(capsys.readouterr().out)
+    (tmp_path / "other.json").write_text(json.dumps(plan | {"name": "other"}))
+    with pytest.raises(SystemExit):
+        main([trace, res, "--plan", str(tmp_path / "other.json")])
+    assert "no plan named flat" in capsys.readouterr().err
