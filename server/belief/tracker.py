@@ -5,8 +5,6 @@ Pure functions over arrays, in the filterpy style:
 * :func:`predict` ``(belief, transition) -> belief``  (sparse mat-vec, new array)
 * :func:`update` ``(belief, likelihood) -> belief``   (elementwise product, normalised)
 * :func:`fine_likelihood` ``(image_sim, graph) -> likelihood`` (max over a location's images)
-* :func:`turn_rescale` ``(predicted, likelihood, n_locations, power) -> likelihood`` (a frame
-  taken turning on the spot weighs places against edges less)
 
 :class:`Tracker` wires them for one robot: predict with the action just executed, mix in a little
 "kidnap" mass, update with the engine's similarities, and summarise (``b(s)``, ``b(i | e)``, top
@@ -58,7 +56,6 @@ __all__ = [
     "fine_likelihood",
     "predict",
     "summarise",
-    "turn_rescale",
     "update",
 ]
 
@@ -154,32 +151,6 @@ def fine_likelihood(
     return out
 
 
-def turn_rescale(
-    predicted: npt.ArrayLike, likelihood: npt.ArrayLike, n_locations: int, power: float
-) -> FloatArray:
-    """The ``(n_fine,)`` likelihood rescaled on the places (the first ``n_locations`` states)
-    and on the edges so that it weighs the one against the other by its evidence raised to
-    ``power`` (in [0, 1]) only: with ``predicted`` ``(n_fine,)`` (>= 0), the places' share of
-    ``predicted * result`` is proportional to ``P * (Lp / P) ** power`` and the edges' to
-    ``E * (Le / E) ** power``, where ``P``, ``E`` are the predicted shares and ``Lp``, ``Le``
-    the shares of ``predicted * likelihood``. ``power`` 1 leaves it as it is; 0 moves no mass
-    between places and edges. Within the places and within the edges the ratios stay. A side
-    without predicted mass or without likelihood is left as it is."""
-    b = np.asarray(predicted, dtype=np.float64)
-    out = np.array(likelihood, dtype=np.float64)
-    L = int(n_locations)
-    prior = np.array([b[:L].sum(), b[L:].sum()])
-    weighed = np.array([b[:L] @ out[:L], b[L:] @ out[L:]])
-    if np.any(prior <= 0) or np.any(weighed <= 0):
-        return out
-    total = weighed.sum()
-    target = prior * (weighed / total / prior) ** power
-    scale = target / target.sum() * total / weighed
-    out[:L] *= scale[0]
-    out[L:] *= scale[1]
-    return out
-
-
 @dataclass(frozen=True)
 class TrackerParams:
     """Tracker settings (everything that is not a transition probability).
@@ -213,13 +184,6 @@ class TrackerParams:
     * ``motion_quantum`` (0.02): the travelled distance ``|v| dt`` and ``dt`` are rounded on a
       logarithmic grid of this relative step before computing the advance, so that the cached
       motion matrices are reused from frame to frame (a 1% error in the expected advance).
-    * ``turn_split_power`` (1.0), ``turn_v`` (0.02 m/s), ``turn_w`` (0.2 rad/s): a frame taken
-      while the robot turns on the spot (``|v| <= turn_v`` and ``|w| >= turn_w``) weighs the
-      places against the edges by its evidence raised to this power (:func:`turn_rescale`): 1,
-      as any other frame; 0, it moves no mass between them (within the places and within the
-      edges it weighs as any other). A place's likelihood is the best of its spin views, which
-      face every way; an edge image's is its one view, taught facing along the edge: turning,
-      the views the edge never saw count against it, and the places gain whatever they are.
     * ``top_k`` (5): how many upper states :attr:`BeliefSummary.top_states` lists.
     * ``smoother_lag`` (10): steps kept for the fixed-lag smoother (0 disables it).
     * ``appearance``: how the belief over appearance models follows the evidence when
@@ -237,9 +201,6 @@ class TrackerParams:
     likelihood_power: float = 1.0
     changed_likelihood_power: float | None = 0.75
     motion_quantum: float = 0.02
-    turn_split_power: float = 1.0
-    turn_v: float = 0.02
-    turn_w: float = 0.2
     top_k: int = 5
     smoother_lag: int = 10
     appearance: AppearanceParams = field(default_factory=AppearanceParams)
@@ -258,8 +219,6 @@ class TrackerParams:
         changed = self.changed_likelihood_power
         if not (self.likelihood_power > 0 and (changed is None or changed > 0)):
             raise ValueError("likelihood_power and changed_likelihood_power must be > 0")
-        if not (0 <= self.turn_split_power <= 1 and self.turn_v >= 0 and self.turn_w >= 0):
-            raise ValueError("turn_split_power must be in [0, 1], turn_v and turn_w >= 0")
         if self.top_k < 1 or self.smoother_lag < 0:
             raise ValueError("top_k must be >= 1 and smoother_lag >= 0")
 
@@ -581,8 +540,6 @@ class Tracker:
             m.params.teleport + p.surprise_gain * (1.0 - evidence),
         )
         post = mix_prior(moved, m.prior, eps)
-        if p.turn_split_power < 1 and abs(v) <= p.turn_v and abs(w) >= p.turn_w:
-            lik = turn_rescale(post, lik, m.n_locations, p.turn_split_power)
         post *= lik  # eq. 1; lik >= floor > 0, so the sum is > 0
         post /= post.sum()
         self._belief = post
