@@ -88,6 +88,32 @@ class TaughtTruth:
         near = a + f[:, None] * ab
         return float(np.sqrt(np.min(np.einsum("ij,ij->i", p - near, p - near))))
 
+    def locate(self, edge: int, along: float, lateral: float) -> tuple[float, float] | None:
+        """Where a path estimate ``along`` metres along ``edge`` and ``lateral`` metres to
+        its left puts the robot in the world (m): the point that far along the true path
+        (its images' positions joined; clamped to its ends), moved ``lateral`` to the left
+        of the path's direction there (of the heading taught there where the path has no
+        length, a turn on the spot). ``None`` for an edge it does not know."""
+        poses = self.edges.get(edge)
+        if poses is None or len(poses) == 0:
+            return None
+        pts = poses[:, :2]
+        seg = np.hypot(*np.diff(pts, axis=0).T) if len(pts) > 1 else np.zeros(0)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        along = float(np.clip(along, 0.0, s[-1]))
+        i = int(np.clip(np.searchsorted(s, along, side="right") - 1, 0, max(len(pts) - 2, 0)))
+        if len(seg) and seg[i] > 1e-9:
+            f = (along - s[i]) / seg[i]
+            point = pts[i] + f * (pts[i + 1] - pts[i])
+            direction = (pts[i + 1] - pts[i]) / seg[i]
+        else:
+            point = pts[i]
+            theta = float(poses[i, 2])
+            direction = np.array([np.cos(theta), np.sin(theta)])
+        left = np.array([-direction[1], direction[0]])
+        x, y = point + lateral * left
+        return float(x), float(y)
+
 
 """Why a trial failed, in the order they are tested (see :func:`cause`)."""
 

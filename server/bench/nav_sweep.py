@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import multiprocessing as mp
 import os
 import queue
@@ -284,8 +285,9 @@ def write_trace(path: Path, rows: list[dict[str, Any]]) -> None:
 def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callable[[int, Any], None]:
     """A step hook that records the true pose, the command, the top beliefs, the belief over
     appearance models, the change evidence and the path tracker's estimate (edge id, along,
-    lateral, heading error, their standard deviations, locked, and the true distance to that
-    edge's taught path, from ``taught``; null when it tracks none)."""
+    lateral, heading error, their standard deviations, locked, the true distance to that
+    edge's taught path and how far the robot truly is from where the estimate puts it, from
+    ``taught``: ``TaughtTruth.locate``; null when it tracks none)."""
 
     def hook(step: int, result: Any) -> None:
         pose, c = robot.pose, result.command
@@ -293,6 +295,8 @@ def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callabl
         tracked = None
         if path is not None:
             error = None if taught is None else taught.error(path.edge, pose.x, pose.y)
+            put = None if taught is None else taught.locate(path.edge, path.along_m, path.lateral_m)
+            missed = None if put is None else math.hypot(put[0] - pose.x, put[1] - pose.y)
             tracked = {
                 "edge": path.edge,
                 "along": round(path.along_m, 3),
@@ -305,6 +309,7 @@ def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callabl
                 ],
                 "locked": path.locked,
                 "true_error": None if error is None else round(error, 3),
+                "estimate_error": None if missed is None else round(missed, 3),
             }
         out.append(
             {

@@ -207,3 +207,26 @@ def test_with_the_plans_the_belief_while_turning_and_the_search_locks_are_counte
     with pytest.raises(SystemExit):
         main([trace, res, "--plan", str(tmp_path / "other.json")])
     assert "no plan named flat" in capsys.readouterr().err
+
+
+def test_locks_taken_are_also_judged_by_the_estimates_own_error_where_the_trace_has_it(
+    tmp_path: Path,
+) -> None:
+    def judged(along: float, missed: float, *, locked: bool) -> dict:
+        return tracked(0, along, 0.05, locked=locked) | {"estimate_error": missed}
+
+    frames = [
+        frame(1, path=judged(0.0, 3.0, locked=False)),
+        frame(2, path=judged(0.1, 3.0, locked=True)),  # on the path's line, 3 m from the robot
+        frame(3, path=judged(0.2, 3.0, locked=False)),
+        frame(4, path=judged(1.0, 0.1, locked=True)),  # right
+    ]
+    write(tmp_path / "trace", "flat", "same", 0, frames)
+    result = {"results": [{"rows": [row("flat", 0, success=True, state="arrived", distance=0)]}]}
+    out = summary(load(tmp_path / "trace", result))
+    assert out["taken"] == {"on / otherwise": {"all": 2, "in failed trials": 0}}
+    assert out["taken_by_estimate_error"] == {
+        "on": {"all": 1, "in failed trials": 0},
+        "near": {"all": 0, "in failed trials": 0},
+        "off": {"all": 1, "in failed trials": 0},
+    }
