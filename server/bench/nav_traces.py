@@ -9,9 +9,10 @@ from the tracked edge's taught path, ``path.true_error``):
   the lock's last frame held (:data:`LET_GO_SIGNS`);
 * locks taken: where, whether the robot was turning at a place searching for the edge then
   (RotateAndFindEdge, the estimate within :data:`AT_PLACE_M` of the edge's start), and how
-  many of each in trials that failed; in traces that carry it, also by how far the robot
-  truly was from where the estimate put it (``path.estimate_error``, on, near or off by the
-  same bounds: an estimate on the path's line metres from the robot is off);
+  many of each in trials that failed; in traces that carry it, also by where the robot was
+  against the path and against where the estimate put it (``path.estimate_error``, on, near
+  or off by the same bounds: an estimate on the path's line metres from the robot is "path
+  on / estimate off");
 * every false arrival (the task said "arrived" away from the goal): the tracker's state at
   the end;
 * with ``--plan`` (the run's plan files, for where their places were taught): how often the
@@ -322,14 +323,13 @@ def summary(
         },
         "false_arrivals": [a for t in trials if (a := false_arrival(t)) is not None],
     }
-    judged = Counter((x["estimate"], x["failed_trial"]) for x in took if x["estimate"] is not None)
+    judged = [x for x in took if x["estimate"] is not None]
     if judged:  # traces written since the estimate's own error was recorded
+        both = Counter((x["where"], x["estimate"]) for x in judged)
+        lost = Counter((x["where"], x["estimate"]) for x in judged if x["failed_trial"])
         out["taken_by_estimate_error"] = {
-            w: {
-                "all": judged[(w, False)] + judged[(w, True)],
-                "in failed trials": judged[(w, True)],
-            }
-            for w in ("on", "near", "off")
+            f"path {w} / estimate {e}": {"all": n, "in failed trials": lost[(w, e)]}
+            for (w, e), n in sorted(both.items())
         }
     if spots is not None:
         out["by_place"] = _by_place(trials, spots)

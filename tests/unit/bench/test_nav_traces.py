@@ -226,7 +226,6 @@ def test_locks_taken_are_also_judged_by_the_estimates_own_error_where_the_trace_
     out = summary(load(tmp_path / "trace", result))
     assert out["taken"] == {"on / otherwise": {"all": 2, "in failed trials": 0}}
     assert out["taken_by_estimate_error"] == {
-        "on": {"all": 1, "in failed trials": 0},
-        "near": {"all": 0, "in failed trials": 0},
-        "off": {"all": 1, "in failed trials": 0},
+        "path on / estimate off": {"all": 1, "in failed trials": 0},
+        "path on / estimate on": {"all": 1, "in failed trials": 0},
     }
