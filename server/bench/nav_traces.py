@@ -216,8 +216,8 @@ def _by_place(trials: list[Trial], spots: Spots) -> dict[str, Any]:
         for near in ("near", "far")
     }
     lo, hi = SEARCH_FROM_M
-    bins = Counter()
-    failed = Counter()
+    bins: Counter[str] = Counter()
+    failed: Counter[str] = Counter()
     for t in trials:
         for x in taken(t, spots.get(t.plan, {})):
             d = x["place_m"]
