@@ -17,10 +17,11 @@ from server.belief.tracker import BeliefSummary
 from server.domain import Edge, Location, TourGraph
 from server.navigation import NavigationParams, TourRuntime
 from server.navigation.command import Command, Proposal
+from server.navigation.geometry import EdgePath, compose
 from server.navigation.observation import Observation, Outcome, Views
-from server.navigation.pathtrack import PathEstimate
+from server.navigation.pathtrack import PathEstimate, PathTracker, TopometricParams
 from server.policy.voting import Decision
-from server.vision.features import extract
+from server.vision.features import FeatureParams, ImageFeatures, extract
 from server.vision.index import Similarity
 
 A, B, C, D = range(4)
@@ -200,4 +201,33 @@ def path_estimate(
         index=index,
         length_m=length_m,
         since_fix_s=since_fix_s,
+    )
+
+
+NO_FEATURES = ImageFeatures(
+    keypoints=np.zeros((0, 2), np.float32),
+    descriptors=np.zeros((0, FeatureParams().descriptor_bytes), np.uint8),
+    signature=np.zeros(0, np.float32),
+)
+"""A frame or taught image in which the camera found nothing (the depth profiles alone)."""
+
+
+def taught_edge(
+    start: np.ndarray, n: int = 80, *, walls: list[tuple[float, float, float, float]]
+) -> tuple[EdgePath, list[np.ndarray]]:
+    """A straight taught edge of ``n`` images 0.05 m apart from world pose ``start``, and the
+    depth profile taught with each image in the room ``walls``."""
+    edge = Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
+    path = EdgePath.of(edge)
+    depths = [room_profile(*compose(start, pose), walls=walls) for pose in path.poses]
+    return path, depths
+
+
+def depth_tracker(
+    path: EdgePath, depths: list[np.ndarray], params: TopometricParams
+) -> PathTracker:
+    """A tracker of the one edge ``path`` whose images show no features, with the depth
+    profiles ``depths`` taught along it."""
+    return PathTracker(
+        (path,), (NO_FEATURES,) * path.n_images, np.array([0]), params, depth=lambda k: depths[k]
     )

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from navigation_testkit import FOV, RAYS, room_profile
-from test_navigation_pathtrack import NO_FEATURES, depth_tracker, taught_edge
+from navigation_testkit import FOV, NO_FEATURES, RAYS, depth_tracker, room_profile, taught_edge
 
 from server.belief.model import Action
 from server.navigation.geometry import compose

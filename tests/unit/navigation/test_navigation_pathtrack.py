@@ -9,7 +9,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from navigation_testkit import room_profile
+from navigation_testkit import NO_FEATURES, depth_tracker, room_profile, taught_edge
 
 from server.belief.model import Action
 from server.domain import Edge
@@ -18,7 +18,6 @@ from server.navigation.pathtrack import PathTracker, TopometricParams
 from server.navigation.pursuit import lookahead_point, pursue
 from server.navigation.tracking import move
 from server.policy.voting import Decision
-from server.vision.features import FeatureParams, ImageFeatures
 
 WALLS = [  # a 6 m x 3 m room with a cupboard and a table
     (0, 0, 6, 0),
@@ -30,32 +29,6 @@ WALLS = [  # a 6 m x 3 m room with a cupboard and a table
     (2.0, 0.0, 2.0, 0.5),
     (2.0, 0.5, 2.6, 0.5),
 ]
-NO_FEATURES = ImageFeatures(
-    keypoints=np.zeros((0, 2), np.float32),
-    descriptors=np.zeros((0, FeatureParams().descriptor_bytes), np.uint8),
-    signature=np.zeros(0, np.float32),
-)
-
-
-def taught_edge(
-    start: np.ndarray, n: int = 80, walls: list[tuple[float, float, float, float]] = WALLS
-) -> tuple[EdgePath, list[np.ndarray]]:
-    """A straight taught edge of ``n`` images 0.05 m apart from world pose ``start``, and the
-    depth profile taught with each image in the room ``walls``."""
-    edge = Edge(0, 1, tuple(range(n)), np.arange(n) * 0.2, np.full(n, 0.25), np.zeros(n))
-    path = EdgePath.of(edge)
-    depths = [room_profile(*compose(start, pose), walls=walls) for pose in path.poses]
-    return path, depths
-
-
-def depth_tracker(
-    path: EdgePath, depths: list[np.ndarray], params: TopometricParams
-) -> PathTracker:
-    """A tracker of the one edge ``path`` whose images show no features, with the depth
-    profiles ``depths`` taught along it."""
-    return PathTracker(
-        (path,), (NO_FEATURES,) * path.n_images, np.array([0]), params, depth=lambda k: depths[k]
-    )
 
 
 def run(
@@ -66,7 +39,7 @@ def run(
     the robot is said to face away from where the edge sets off."""
     rng = np.random.default_rng(seed)
     start = np.array([0.6, 1.5, 0.0])  # the taught edge runs along the room's middle
-    path, depths = taught_edge(start)
+    path, depths = taught_edge(start, walls=WALLS)
     params = TopometricParams()
     tracker = depth_tracker(path, depths, params)
     truth = compose(start, np.array([0.3, offset, heading]))
@@ -123,7 +96,7 @@ def test_a_robot_said_to_face_away_is_not_locked_on_until_it_faces_the_way() -> 
 
 
 def test_a_tracker_carries_its_estimate_across_a_place_into_the_next_edge() -> None:
-    first, _ = taught_edge(np.array([0.6, 1.5, 0.0]), n=20)  # 0.95 m
+    first, _ = taught_edge(np.array([0.6, 1.5, 0.0]), n=20, walls=WALLS)  # 0.95 m
     # the next edge starts where the first ended, turned a quarter turn to the left
     second = EdgePath.of(
         Edge(1, 2, tuple(range(20)), np.arange(20) * 0.2, np.full(20, 0.25), np.zeros(20))
