@@ -30,7 +30,6 @@ from server.navigation.pursuit import PursuitParams
 from server.navigation.scanmatch import (
     ScanFit,
     ScanParams,
-    further_share,
     match_profiles,
     match_profiles_robust,
 )
@@ -147,22 +146,6 @@ class TopometricParams:
       at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
       can be metres off in a plain corridor with a standard deviation of centimetres (its
       measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
-    * ``depth_along`` (False), ``depth_along_frames`` (10), ``depth_along_share`` (0.15),
-      ``depth_along_accept`` (0.05), ``depth_along_m`` (3.0 m), ``depth_further_m`` (0.5 m):
-      while locked, the frame's depth profile is compared ray by ray with what the profile
-      taught at the nearest image would show from the estimate
-      (:func:`server.navigation.scanmatch.further_share`: the share of rays that see more than
-      ``depth_further_m`` past a taught surface). When the median of the last
-      ``depth_along_frames`` comparisons is at least ``depth_along_share``, the taught images
-      within ``depth_along_m`` along the path either way (facing as the nearest one does)
-      are compared the same way, the robot at the same offset from each; where those that
-      show at most ``depth_along_accept`` lie within ``depth_along_span_m`` (0.5 m) of each
-      other, 0.5 m or more from the estimate, the estimate moves to their middle, its
-      along-path uncertainty ``scan_along_sigma_m`` (a stretch that fits anywhere, as a plain
-      corridor does, moves nothing). A surface does not
-      vanish: a door, a passage or a corridor's end where the profile put a wall says the
-      estimate is at the wrong point along the path, which the alignment's own fit (a
-      corridor's walls align anywhere along it) cannot.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -213,13 +196,6 @@ class TopometricParams:
     end_depth: bool = True
     end_depth_m: float = 0.2
     end_depth_rad: float = 0.15
-    depth_along: bool = False
-    depth_along_frames: int = 10
-    depth_along_share: float = 0.15
-    depth_along_accept: float = 0.05
-    depth_along_m: float = 3.0
-    depth_along_span_m: float = 0.5
-    depth_further_m: float = 0.5
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0
@@ -327,7 +303,6 @@ class PathTracker:
         self.rival = 0  # scan fits in a row that put the robot elsewhere beside the path
         self.rival_lateral = 0.0  # where the last of them put it (m left of the path)
         self.refuted = 0  # scan fits in a row, while locked, that the gate refused
-        self.unseen: list[float] = []  # recent shares of rays seeing past a taught surface
         self.trace: list[TracePoint] = []  # since the last locked frame (that one first)
         self.chained = False  # the estimate came onto this edge through a place
         self.estimate: PathEstimate | None = None
@@ -440,7 +415,6 @@ class PathTracker:
         self.asked_other = 0
         self.rival = 0
         self.refuted = 0
-        self.unseen = []
         self.trace = []
         self.chained = False
 
@@ -465,7 +439,6 @@ class PathTracker:
         self.asked_other = 0
         self.rival = 0
         self.refuted = 0
-        self.unseen = []
         self.chained = True
 
     # -- the camera --------------------------------------------------------------------------
@@ -544,70 +517,10 @@ class PathTracker:
         self.refuted = self.refuted + 1 if locked and not up.used else 0
         if self.refuted >= p.refute_fits:
             self._widen(h)
-        if up.used:
-            self.mean, self.cov = up.mean, up.cov
-        if locked and p.depth_along and self._along_by_depth(path, depth):
-            return 1
-        return int(up.used)
-
-    def _along_by_depth(self, path: EdgePath, depth: npt.NDArray[np.float64]) -> bool:
-        """Move the estimate along the path where the depth profile says it is, when what it
-        sees past the taught surfaces says it is not where the estimate is (``depth_along``);
-        whether it moved."""
-        assert self.edge is not None and self.taught_depth is not None
-        p = self.p
-        along, _ = path.project(self.mean[:2])
-        k = path.image_at(along, float(self.mean[2]))
-        taught = self.taught_depth(self.image(self.edge, k))
-        if taught is None:
-            return False
-        here = relative(path.poses[k], self.mean)
-
-        def unseen(profile: npt.ArrayLike) -> float | None:
-            return further_share(
-                depth,
-                profile,
-                here,
-                fov_deg=p.depth_fov_deg,
-                further_m=p.depth_further_m,
-                params=p.scan_fit,
-            )
-
-        share = unseen(taught)
-        if share is None:
-            return False
-        self.unseen = [*self.unseen, share][-p.depth_along_frames :]
-        if len(self.unseen) < p.depth_along_frames:
-            return False
-        if float(np.median(self.unseen)) < p.depth_along_share:
-            return False
-        self.unseen = []
-        fits = []  # the images, near enough and facing alike, where the robot would fit
-        for j in range(path.n_images):
-            far = abs(float(path.along[j]) - float(path.along[k]))
-            turned = abs(wrap(float(path.poses[j][2] - path.poses[k][2])))
-            if far > p.depth_along_m or turned > 0.3:
-                continue
-            other = self.taught_depth(self.image(self.edge, j))
-            got = None if other is None else unseen(other)
-            if got is not None and got <= p.depth_along_accept:
-                fits.append(j)
-        # one stretch, away from the estimate: a stretch of corridor that fits anywhere, or
-        # the estimate's own neighbourhood, says nothing
-        spans = [float(path.along[j]) for j in fits]
-        if not fits or max(spans) - min(spans) > p.depth_along_span_m:
-            return False
-        best = fits[int(np.argsort(spans)[len(spans) // 2])]
-        if abs(float(path.along[best]) - float(path.along[k])) < 0.5:
-            return False
-        self.mean = compose(path.poses[best], here)
-        heading = path.heading_at(float(path.along[best]))
-        pc = path_frame_cov(self.cov, heading)
-        sh = math.sqrt(max(float(self.cov[2, 2]), 0.0))
-        lateral = math.sqrt(max(float(pc[1, 1]), 0.0))
-        cov = initial_cov(heading, p.scan_along_sigma_m, lateral, sh)
-        self.cov = 0.5 * (cov + cov.T)
-        return True
+        if not up.used:
+            return 0
+        self.mean, self.cov = up.mean, up.cov
+        return 1
 
     def _widen(self, heading: float) -> None:
         """Widen the position uncertainty back to a new estimate's (along the path at
