@@ -182,10 +182,12 @@ def turning(trial: Trial, spots: dict[str, tuple[float, float]]) -> Counter[tupl
     or ``"far"``, and whether the belief's most likely state was a place then."""
     out: Counter[tuple[str, str, bool]] = Counter()
     xy = np.array(list(spots.values()), dtype=np.float64).reshape(-1, 2)
+    if not len(xy):
+        return out
     for row in trial.rows:
         v, w = abs(row["v"]), abs(row["w"])
         motion = "turning" if v <= TURN_V and w >= TURN_W else "driving" if v > DRIVE_V else None
-        if motion is None or not len(xy):
+        if motion is None:
             continue
         near = np.min(np.hypot(*(xy - np.asarray(row["pose"][:2])).T)) <= NEAR_PLACE_M
         out[(motion, "near" if near else "far", row["top"][0][0] in spots)] += 1
@@ -202,8 +204,9 @@ def read_spots(plans: list[Path]) -> Spots:
     return out
 
 
-def _by_place(trials: list[Trial], spots: Spots) -> dict[str, Any]:
-    """The counts :func:`summary` adds with the plans' place ``spots``."""
+def _by_place(trials: list[Trial], took: list[dict[str, Any]], spots: Spots) -> dict[str, Any]:
+    """The counts :func:`summary` adds with the plans' place ``spots``, from the ``trials``
+    and the locks taken in them (:func:`taken`, given the spots)."""
     frames: Counter[tuple[str, str, bool]] = Counter()
     for t in trials:
         frames += turning(t, spots.get(t.plan, {}))
@@ -218,14 +221,13 @@ def _by_place(trials: list[Trial], spots: Spots) -> dict[str, Any]:
     lo, hi = SEARCH_FROM_M
     bins: Counter[str] = Counter()
     failed: Counter[str] = Counter()
-    for t in trials:
-        for x in taken(t, spots.get(t.plan, {})):
-            d = x["place_m"]
-            if d is None:
-                continue
-            key = f"< {lo} m" if d < lo else f"{lo}-{hi} m" if d < hi else f">= {hi} m"
-            bins[key] += 1
-            failed[key] += not t.success
+    for x in took:
+        d = x["place_m"]
+        if d is None:
+            continue
+        key = f"< {lo} m" if d < lo else f"{lo}-{hi} m" if d < hi else f">= {hi} m"
+        bins[key] += 1
+        failed[key] += x["failed_trial"]
     return {
         "near_place_m": NEAR_PLACE_M,
         "belief_while": belief,
@@ -290,7 +292,7 @@ def summary(
     turning and the locks taken searching by the distance from the place (``by_place``)."""
     p = TopometricParams() if p is None else p
     gone = [x for t in trials for x in let_go(t, p)]
-    took = [x for t in trials for x in taken(t)]
+    took = [x for t in trials for x in taken(t, None if spots is None else spots.get(t.plan, {}))]
     took_all = Counter((x["where"], x["searching"]) for x in took)
     took_failed = Counter((x["where"], x["searching"]) for x in took if x["failed_trial"])
     again: Counter[str] = Counter()
@@ -332,7 +334,7 @@ def summary(
             for (w, e), n in sorted(both.items())
         }
     if spots is not None:
-        out["by_place"] = _by_place(trials, spots)
+        out["by_place"] = _by_place(trials, took, spots)
     return out
 
 
