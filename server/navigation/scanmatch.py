@@ -250,3 +250,66 @@ def match_profiles_starts(
         if f is not None
     ]
     return sorted(fits, key=lambda f: f.score)
+
+
+def expected_ranges(
+    taught: npt.ArrayLike,
+    pose: npt.ArrayLike,
+    n_rays: int,
+    fov_deg: float,
+    params: ScanParams = ScanParams(),
+) -> FloatArray:
+    """``(n_rays,)`` what a robot at ``pose`` ``(3,)`` in the taught robot's frame (x forward,
+    y left, m; heading, rad) would see of the surfaces a ``taught`` profile saw: each of its
+    rays (``fov_deg`` wide, leftmost first) cast onto the taught points joined where they lie
+    on one surface (neighbours within ``surface_gap_m``: a door's opening stays open), the
+    nearest crossing; NaN where the ray meets none of them."""
+    pts = profile_points(taught, fov_deg, params)
+    out = np.full(int(n_rays), np.nan)
+    if len(pts) < 2 or n_rays < 1:
+        return out
+    a, b = pts[:-1], pts[1:]
+    keep = np.linalg.norm(b - a, axis=1) < params.surface_gap_m
+    a, e = a[keep], (b - a)[keep]
+    if not len(a):
+        return out
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=np.float64))
+    half = math.radians(fov_deg) / 2
+    angles = th + (np.linspace(half, -half, n_rays) if n_rays > 1 else np.zeros(1))
+    d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (n, 2)
+    # origin + t d = a + u e  ->  [d, -e] [t, u]^T = a - origin, for every ray and segment
+    det = d[:, None, 0] * (-e[None, :, 1]) - d[:, None, 1] * (-e[None, :, 0])
+    rx, ry = a[None, :, 0] - x, a[None, :, 1] - y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (rx * (-e[None, :, 1]) - ry * (-e[None, :, 0])) / det
+        u = (d[:, None, 0] * ry - d[:, None, 1] * rx) / det
+    hit = (np.abs(det) > 1e-12) & (t > 0) & (u >= -1e-9) & (u <= 1 + 1e-9)  # ends included
+    t = np.where(hit, t, np.inf)
+    nearest = t.min(axis=1)
+    return np.where(np.isfinite(nearest), nearest, np.nan)
+
+
+def further_share(
+    depth: npt.ArrayLike,
+    taught: npt.ArrayLike,
+    pose: npt.ArrayLike,
+    *,
+    fov_deg: float,
+    further_m: float,
+    min_rays: int = 8,
+    params: ScanParams = ScanParams(),
+) -> float | None:
+    """The share of the rays of ``depth`` that see more than ``further_m`` beyond the surface a
+    ``taught`` profile puts in their way from ``pose`` (the robot in the taught robot's frame,
+    :func:`expected_ranges`; a ray that sees nothing sees past any surface), over
+    the rays that meet a taught surface nearer than ``max_range_m``. A surface does not
+    vanish: where the robot is where the profile says, next to none do (an object moved away
+    aside); a door, a passage or a corridor's end elsewhere shows in a fifth or more of them.
+    ``None`` when fewer than ``min_rays`` rays meet a taught surface."""
+    now = np.asarray(depth, dtype=np.float64)
+    want = expected_ranges(taught, pose, len(now), fov_deg, params)
+    compared = np.isfinite(want) & (want < params.max_range_m)
+    if int(compared.sum()) < min_rays:
+        return None
+    seen = np.where(np.isfinite(now) & (now < params.max_range_m), now, np.inf)
+    return float(np.mean(seen[compared] - want[compared] > further_m))
