@@ -486,10 +486,6 @@ class PathPublic(_Model):
     sigma_along_m: float = Field(description="Standard deviation of along_m, metres.")
     sigma_heading: float = Field(description="Standard deviation of the heading, radians.")
     locked: bool = Field(description="Sure enough to steer by.")
-    refuted: bool = Field(
-        default=False,
-        description="The depth profile says the robot is not where the estimate puts it.",
-    )
     length_m: float = Field(description="Length of the taught path, metres.")
     image_id: int = Field(description="The taught image nearest the estimate.")
     x: float = Field(description="The robot's position in the edge's frame (its first image), m.")

@@ -308,7 +308,6 @@ def tracer(robot: Any, out: list[dict[str, Any]], taught: Any = None) -> Callabl
                     round(path.sigma_heading, 3),
                 ],
                 "locked": path.locked,
-                "refuted": path.refuted,
                 "true_error": None if error is None else round(error, 3),
                 "estimate_error": None if missed is None else round(missed, 3),
             }

@@ -30,7 +30,6 @@ from server.navigation.pursuit import PursuitParams
 from server.navigation.scanmatch import (
     ScanFit,
     ScanParams,
-    further_share,
     match_profiles,
     match_profiles_robust,
 )
@@ -147,19 +146,6 @@ class TopometricParams:
       at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
       can be metres off in a plain corridor with a standard deviation of centimetres (its
       measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
-    * ``depth_refute`` (False), ``depth_refute_frames`` (10), ``depth_refute_share`` (0.15),
-      ``depth_further_m`` (0.5 m): while locked, the frame's depth profile is compared ray by
-      ray with what the profile taught at the nearest image would show from the estimate
-      (:func:`server.navigation.scanmatch.further_share`: the share of rays that see more
-      than ``depth_further_m`` past a taught surface; a surface does not vanish). When the
-      median of the last ``depth_refute_frames`` comparisons is at least
-      ``depth_refute_share``, the estimate is *refuted*: its position uncertainty is widened
-      back to a new estimate's (as ``refute_fits`` does, so the belief's most likely image
-      can move it along the path), and until a new window's median falls below the share,
-      the tracker's word in the belief is turned round: the images near the estimate weigh
-      ``path_evidence`` times *less* than every other state (:func:`path_likelihood`). The
-      depth says "not here" well and "where" poorly (a look-alike stretch 1-3 m away fits as
-      well, docs/navigation.md section 4): where the robot is, the belief chooses.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -210,10 +196,6 @@ class TopometricParams:
     end_depth: bool = True
     end_depth_m: float = 0.2
     end_depth_rad: float = 0.15
-    depth_refute: bool = False
-    depth_refute_frames: int = 10
-    depth_refute_share: float = 0.15
-    depth_further_m: float = 0.5
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0
@@ -250,8 +232,6 @@ class PathEstimate:
         since_fix_s: robot seconds since a heading was last measured.
         chained: the estimate came onto this edge from the end of the one before it, through
             their place (:meth:`PathTracker.step`), not afresh where the belief put it.
-        refuted: the depth profile says the robot is not where the estimate puts it
-            (``TopometricParams.depth_refute``).
     """
 
     edge: int
@@ -270,7 +250,6 @@ class PathEstimate:
     length_m: float
     since_fix_s: float
     chained: bool = False
-    refuted: bool = False
 
     @property
     def remaining_m(self) -> float:
@@ -324,8 +303,6 @@ class PathTracker:
         self.rival = 0  # scan fits in a row that put the robot elsewhere beside the path
         self.rival_lateral = 0.0  # where the last of them put it (m left of the path)
         self.refuted = 0  # scan fits in a row, while locked, that the gate refused
-        self.unseen: list[float] = []  # recent shares of rays seeing past a taught surface
-        self.disputed = False  # the depth profile refuted the estimate (depth_refute)
         self.trace: list[TracePoint] = []  # since the last locked frame (that one first)
         self.chained = False  # the estimate came onto this edge through a place
         self.estimate: PathEstimate | None = None
@@ -438,7 +415,6 @@ class PathTracker:
         self.asked_other = 0
         self.rival = 0
         self.refuted = 0
-        self.unseen, self.disputed = [], False
         self.trace = []
         self.chained = False
 
@@ -463,7 +439,6 @@ class PathTracker:
         self.asked_other = 0
         self.rival = 0
         self.refuted = 0
-        self.unseen, self.disputed = [], False
         self.chained = True
 
     # -- the camera --------------------------------------------------------------------------
@@ -537,52 +512,15 @@ class PathTracker:
             return 1
         if best is None:
             return 0
-        used = self._scan_update(best, h, locked)
-        if locked and p.depth_refute and self._disputes(path, depth):
-            self._widen(h)
-        return used
-
-    def _scan_update(self, best: tuple[ScanFit, FloatArray], heading: float, locked: bool) -> int:
-        """Correct the estimate by the best scan fit (gated); widen it when the gate has
-        refused ``refute_fits`` in a row while locked. 1 when the fit was used."""
-        measured, R = self._measured(*best, heading)
-        up = update_pose(self.mean, self.cov, measured, R, gate=self.p.scan_gate)
+        measured, R = self._measured(*best, h)
+        up = update_pose(self.mean, self.cov, measured, R, gate=p.scan_gate)
         self.refuted = self.refuted + 1 if locked and not up.used else 0
-        if self.refuted >= self.p.refute_fits:
-            self._widen(heading)
+        if self.refuted >= p.refute_fits:
+            self._widen(h)
         if not up.used:
             return 0
         self.mean, self.cov = up.mean, up.cov
         return 1
-
-    def _disputes(self, path: EdgePath, depth: npt.NDArray[np.float64]) -> bool:
-        """Compare the depth profile with what the one taught nearest the estimate would show
-        from it (``depth_refute``); whether a full window of comparisons has just refuted the
-        estimate. A window that does not clears an earlier refutation."""
-        assert self.edge is not None and self.taught_depth is not None
-        p = self.p
-        along, _ = path.project(self.mean[:2])
-        k = path.image_at(along, float(self.mean[2]))
-        taught = self.taught_depth(self.image(self.edge, k))
-        if taught is None:
-            return False
-        share = further_share(
-            depth,
-            taught,
-            relative(path.poses[k], self.mean),
-            fov_deg=p.depth_fov_deg,
-            further_m=p.depth_further_m,
-            params=p.scan_fit,
-        )
-        if share is None:
-            return False
-        self.unseen = [*self.unseen, share][-p.depth_refute_frames :]
-        if len(self.unseen) < p.depth_refute_frames:
-            return False
-        refuted = float(np.median(self.unseen)) >= p.depth_refute_share
-        self.unseen = []
-        self.disputed = refuted
-        return refuted
 
     def _widen(self, heading: float) -> None:
         """Widen the position uncertainty back to a new estimate's (along the path at
@@ -726,7 +664,6 @@ class PathTracker:
             length_m=path.length,
             since_fix_s=since,
             chained=self.chained,
-            refuted=self.disputed,
         )
 
     def _remember(self, est: PathEstimate) -> None:
@@ -758,18 +695,11 @@ def path_likelihood(
     of the tracked edge (fine states from ``edge_first_fine``, their metres ``along`` it)
     within the tracker's along-path uncertainty of its estimate, falling off as a Gaussian to
     ``1 / ratio`` elsewhere and everywhere else; ``None`` while the tracker is not locked (or
-    ``ratio`` is 1: no evidence). While the depth profile refutes the estimate
-    (``estimate.refuted``, locked or not), turned round: ``1 / ratio`` at the estimate, rising
-    to 1 away from it and everywhere else."""
-    if estimate is None or ratio <= 1.0 or not (estimate.locked or estimate.refuted):
+    ``ratio`` is 1: no evidence)."""
+    if estimate is None or not estimate.locked or ratio <= 1.0:
         return None
     sigma = max(estimate.sigma_along, 0.3)
     near = np.exp(-0.5 * ((np.asarray(along) - estimate.along_m) / sigma) ** 2)
-    span = slice(edge_first_fine, edge_first_fine + len(along))
-    if estimate.refuted:
-        out = np.ones(n_fine)
-        out[span] -= (1.0 - 1.0 / ratio) * near
-        return out
     out = np.full(n_fine, 1.0 / ratio)
-    out[span] += (1.0 - 1.0 / ratio) * near
+    out[edge_first_fine : edge_first_fine + len(along)] += (1.0 - 1.0 / ratio) * near
     return out

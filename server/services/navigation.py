@@ -615,7 +615,6 @@ def path_public(est: PathEstimate, graph: TourGraph) -> schemas.PathPublic:
         sigma_along_m=round(est.sigma_along, 4),
         sigma_heading=round(est.sigma_heading, 4),
         locked=est.locked,
-        refuted=est.refuted,
         length_m=round(est.length_m, 4),
         image_id=int(graph.image_ids[est.image]),
         x=round(float(est.pose[0]), 4),
