@@ -34,14 +34,17 @@ from server.navigation.observation import Observation, ViewRequest, Views
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate
 from server.navigation.pursuit import heading_error, pursue, steer_to
-from server.navigation.runtime import TourRuntime, aligned
+from server.navigation.runtime import TourRuntime
+from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.navigation.tracking import move
 from server.vision.homing import ScaleResult
 
 
 def top_spins(rt: TourRuntime, obs: Observation, location: int, most: int = 3) -> list[int]:
     """``location``'s spin images (canonical indices) the engine ranks highest for this frame."""
-    return rt.top_spins(location, obs.similarity.image, most)
+    spins = rt.spin_images[location]
+    ranked = spins[np.argsort(-obs.similarity.image[spins], kind="stable")[:most]]
+    return [int(i) for i in ranked]
 
 
 SPOT_M = 0.08
@@ -61,18 +64,35 @@ def spot_by_scan(
     :func:`~server.navigation.scanmatch.match_profiles_starts`). ``None`` without a depth
     profile or taught ones; when the place's best spin view is less similar to the frame than
     ``MotionParams.found_similarity`` (a depth profile aligns with any wall: the camera must
-    see the place); when none aligns well (:func:`~server.navigation.runtime.aligned`); or
-    when another alignment about as good puts the spot elsewhere."""
+    see the place); when none aligns well (fewer than 10 points agreeing, or more than 5 cm
+    apart on average); or when another alignment about as good puts the spot elsewhere."""
     tp = rt.params.topometric
     if obs.depth is None or not tp.enabled or not tp.scan:
         return None
     spins = top_spins(rt, obs, location)
     if not spins or float(obs.similarity.image[spins[0]]) < rt.params.motion.found_similarity:
         return None
-    fits = rt.spin_fits(spins, obs.depth)
-    if not fits or not aligned(fits[0]):
+    fits: list[ScanFit] = []
+    for image in spins:
+        taught = rt.taught_depth.get(image)
+        if taught is None:
+            continue
+        fits += match_profiles_starts(
+            taught,
+            obs.depth,
+            np.zeros(3),
+            fov_deg=tp.depth_fov_deg,
+            params=tp.scan_fit,
+            lateral_m=(0.0, 0.6, -0.6, 1.2, -1.2),
+            along_m=(0.0, 0.6, -0.6),
+            turns_rad=(0.0,),
+        )
+    if not fits:
         return None
+    fits.sort(key=lambda f: f.score)
     best = fits[0]
+    if best.pairs < 10 or best.rms_m > 0.05:
+        return None
     # the robot's pose in the spin image's frame, whose origin is the spot: the spot as the
     # robot sees it
     spot = inverse(best.pose)[:2]

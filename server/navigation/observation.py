@@ -218,11 +218,6 @@ def perceive(
     similarities, likelihood = runtime.observe(features)
     if path is not None and path.estimate is not None:
         likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
-    if path is not None and p.topometric.place_depth:
-        places = runtime.place_evidence(
-            tracker.belief, likelihood, frame.depth, similarities[0].image
-        )
-        likelihood = likelihood * places[None, :]
     summary = runtime.believe(
         tracker, last_action, similarities, likelihood, v=frame.v, w=frame.w, dt=dt
     )

@@ -146,15 +146,6 @@ class TopometricParams:
       at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
       can be metres off in a plain corridor with a standard deviation of centimetres (its
       measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
-    * ``place_depth`` (False), ``place_depth_ratio`` (4.0), ``place_depth_places`` (2): the
-      belief's update weighs each of the ``place_depth_places`` places most likely after the
-      frame ``place_depth_ratio`` times less when the frame's depth profile does not align
-      with the profiles taught with the place's spin images
-      (:meth:`server.navigation.runtime.TourRuntime.place_evidence`). A place's likelihood is
-      the best of its spin views, which face every way: a robot turning anywhere finds one
-      that looks alike, and its belief says "at the place" 2-4 m from it. On the shipped
-      homes' tours the profile aligns with the place's spin profiles (as place docking aligns
-      them) within 0.5 m of its spot 95-100 % of the time, 2 m and more away 29-56 %.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -205,9 +196,6 @@ class TopometricParams:
     end_depth: bool = True
     end_depth_m: float = 0.2
     end_depth_rad: float = 0.15
-    place_depth: bool = False
-    place_depth_ratio: float = 4.0
-    place_depth_places: int = 2
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0

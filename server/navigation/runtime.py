@@ -19,7 +19,6 @@ from server.domain import TourGraph
 from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate, PathTracker, path_likelihood
-from server.navigation.scanmatch import ScanFit, match_profiles_starts
 from server.policy.costs import cost_to_goal
 from server.vision.distinctiveness import ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
@@ -35,16 +34,6 @@ TaughtPixels = Callable[[int], "npt.NDArray[np.uint8] | None"]
 #: least recently asked for forgotten first: about 18 kB each with the default features
 #: (4 levels of at most 100 corners: 8 bytes of position and 36 of descriptor each).
 ZOOM_CACHE_IMAGES = 256
-ALIGNED_PAIRS = 10
-ALIGNED_RMS_M = 0.05
-"""A depth profile aligns with a place's spin profiles when the best alignment rests on at
-least this many points agreeing, no more than this far apart on average (m)."""
-
-
-def aligned(fit: ScanFit) -> bool:
-    """Whether an alignment with a place's spin profiles says the robot is at the place
-    (:data:`ALIGNED_PAIRS`, :data:`ALIGNED_RMS_M`)."""
-    return fit.pairs >= ALIGNED_PAIRS and fit.rms_m <= ALIGNED_RMS_M
 
 
 class TourRuntime:
@@ -151,69 +140,6 @@ class TourRuntime:
             edge_ends=tuple((e.source, e.target) for e in g.edges),
             depth=self.taught_depth.get,
         )
-
-    def top_spins(self, location: int, image_similarity: FloatArray, most: int = 3) -> list[int]:
-        """``location``'s spin images (canonical indices) ranked highest by the engine's
-        ``(n_images,)`` similarities of a frame, at most ``most``."""
-        spins = self.spin_images[location]
-        ranked = spins[np.argsort(-image_similarity[spins], kind="stable")[:most]]
-        return [int(i) for i in ranked]
-
-    def spin_fits(self, spins: Sequence[int], depth: FloatArray) -> list[ScanFit]:
-        """A frame's depth profile aligned with those taught with the spin images ``spins``
-        (all taken on their place's spot, in each one's frame), from starts up to 1.2 m across
-        and 0.6 m along around it (:func:`~server.navigation.scanmatch.match_profiles_starts`),
-        the best first; empty when none was taught or none aligns."""
-        tp = self.params.topometric
-        fits: list[ScanFit] = []
-        for image in spins:
-            taught = self.taught_depth.get(image)
-            if taught is None:
-                continue
-            fits += match_profiles_starts(
-                taught,
-                depth,
-                np.zeros(3),
-                fov_deg=tp.depth_fov_deg,
-                params=tp.scan_fit,
-                lateral_m=(0.0, 0.6, -0.6, 1.2, -1.2),
-                along_m=(0.0, 0.6, -0.6),
-                turns_rad=(0.0,),
-            )
-        fits.sort(key=lambda f: f.score)
-        return fits
-
-    def place_evidence(
-        self,
-        belief: FloatArray,
-        likelihood: FloatArray,
-        depth: FloatArray | None,
-        image_similarity: FloatArray,
-    ) -> FloatArray:
-        """``(n_fine,)`` what the depth profile says of the places the belief is about to
-        favour (``TopometricParams.place_depth``): of the ``place_depth_places`` places most
-        likely after this frame (the ``(n_fine,)`` belief before it times the best of the
-        ``(K, n_fine)`` likelihoods), each whose spin profiles the frame's does not align with
-        (:meth:`spin_fits` of its three spin images the engine ranks highest, ``image_similarity``
-        ``(n_images,)``; :func:`aligned`) weighs ``1 / place_depth_ratio``; every other state 1.
-        All ones when it is off, without a depth profile or without taught ones."""
-        tp = self.params.topometric
-        g = self.graph
-        out = np.ones(g.n_fine)
-        if not (tp.place_depth and tp.enabled and tp.scan) or depth is None:
-            return out
-        L = g.n_locations
-        weight = np.asarray(belief)[:L] * np.asarray(likelihood).reshape(-1, g.n_fine).max(0)[:L]
-        for location in np.argsort(-weight, kind="stable")[: tp.place_depth_places]:
-            if weight[location] <= 0:
-                break
-            spins = self.top_spins(int(location), image_similarity)
-            if not any(i in self.taught_depth for i in spins):
-                continue
-            fits = self.spin_fits(spins, depth)
-            if not fits or not aligned(fits[0]):
-                out[location] = 1.0 / max(tp.place_depth_ratio, 1.0)
-        return out
 
     def path_evidence(self, estimate: PathEstimate) -> FloatArray:
         """``(n_fine,)`` the path tracker's word as a likelihood (all ones when it has none:
