@@ -47,9 +47,9 @@ NEAR_PLACE_M = 1.5
 """A robot within this of a place's taught spot (true pose) is near a place, m."""
 TURN_V = 0.02
 TURN_W = 0.2
+DRIVE_V = 0.05
 """A frame whose command drives at most ``TURN_V`` m/s and turns at least ``TURN_W`` rad/s
 turns on the spot; one driving faster than ``DRIVE_V`` m/s drives."""
-DRIVE_V = 0.05
 SEARCH_FROM_M = (1.0, 2.0)
 """The bounds (m) by which :func:`summary` counts locks taken searching at a place, by the
 robot's true distance from that place's taught spot."""
@@ -139,11 +139,16 @@ LET_GO_SIGNS = ("locked_frames", "lateral_m", "sd_along_m", "gained_m", "belief_
 between locks let go on the path and off it for want of measurements."""
 
 
+def top_state(row: dict[str, Any]) -> str:
+    """The name of the state the frame's belief holds most likely ("" when it names none)."""
+    top = row.get("top") or [("", 0.0)]
+    return str(top[0][0])
+
+
 def place_distance(row: dict[str, Any], spots: dict[str, tuple[float, float]]) -> float | None:
     """Metres from the frame's true pose to the taught spot of the place the belief holds
     most likely, or ``None`` when that is not a place of ``spots``."""
-    top = row.get("top") or [("", 0.0)]
-    spot = spots.get(top[0][0])
+    spot = spots.get(top_state(row))
     if spot is None:
         return None
     return float(np.hypot(row["pose"][0] - spot[0], row["pose"][1] - spot[1]))
@@ -190,7 +195,7 @@ def turning(trial: Trial, spots: dict[str, tuple[float, float]]) -> Counter[tupl
         if motion is None:
             continue
         near = np.min(np.hypot(*(xy - np.asarray(row["pose"][:2])).T)) <= NEAR_PLACE_M
-        out[(motion, "near" if near else "far", row["top"][0][0] in spots)] += 1
+        out[(motion, "near" if near else "far", top_state(row) in spots)] += 1
     return out
 
 
