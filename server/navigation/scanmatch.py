@@ -250,3 +250,47 @@ def match_profiles_starts(
         if f is not None
     ]
     return sorted(fits, key=lambda f: f.score)
+
+
+def log_ranges(ranges: npt.ArrayLike, max_range_m: float, min_range_m: float = 0.1) -> FloatArray:
+    """``(..., n_rays)`` the logarithm of depth profiles' ranges, clipped to ``[min_range_m,
+    max_range_m]``; a ray that saw nothing (not finite, or beyond ``max_range_m``) counts as
+    seeing at ``max_range_m``, so two rays that both saw nothing agree."""
+    r = np.asarray(ranges, dtype=np.float64)
+    r = np.where(np.isfinite(r), r, max_range_m)
+    return np.log(np.clip(r, min_range_m, max_range_m))
+
+
+def profile_agreement(
+    ranges: npt.ArrayLike, taught_log: npt.ArrayLike, *, sigma: float, max_shift: int
+) -> FloatArray:
+    """``(n,)`` in ``[0, 1]``: how well one depth profile agrees with each of ``n`` taught ones
+    seen from the same spot, ray by ray.
+
+    Args:
+        ranges: ``(n_rays,)`` the profile, already through :func:`log_ranges`.
+        taught_log: ``(n, n_rays)`` taught profiles through :func:`log_ranges`, float32 or
+            float64 (computed in that precision); a row of NaN (no profile taught) gives NaN.
+        sigma: the log-range difference that halves a ray's agreement (0.2: 20 % further or
+            nearer); a ray agrees ``1 / (1 + (difference / sigma)^2)`` (heavy tails: a moved
+            chair costs only its rays).
+        max_shift: the profiles are also compared shifted by up to this many rays either way
+            (the robot turned a little against the taught heading); the best shift counts.
+
+    The mean agreement over the rays the two profiles share at a shift, the best shift's.
+    """
+    t = np.asarray(taught_log)
+    t = t if t.dtype == np.float32 else t.astype(np.float64)  # float32 rows: half the work
+    q = np.asarray(ranges, dtype=t.dtype)
+    if t.ndim != 2 or t.shape[1] != q.shape[0]:
+        raise ValueError(f"taught profiles {t.shape} do not match a profile of {q.shape[0]} rays")
+    if sigma <= 0 or max_shift < 0 or max_shift >= q.shape[0]:
+        raise ValueError("need sigma > 0 and 0 <= max_shift < n_rays")
+    n_rays = q.shape[0]
+    best = np.full(t.shape[0], -np.inf, dtype=t.dtype)
+    for s in range(-max_shift, max_shift + 1):  # a few shifts, each vectorised over profiles
+        a, b = (q[s:], t[:, : n_rays - s]) if s >= 0 else (q[: n_rays + s], t[:, -s:])
+        x = (b - a[None, :]) / sigma
+        np.fmax(best, (1.0 / (1.0 + x * x)).mean(axis=1), out=best)
+    best[~np.isfinite(best)] = np.nan
+    return best.astype(np.float64)
