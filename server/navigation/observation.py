@@ -218,8 +218,6 @@ def perceive(
     similarities, likelihood = runtime.observe(features)
     if path is not None and path.estimate is not None:
         likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
-    if path is not None:
-        likelihood = likelihood * runtime.depth_evidence(frame.depth)[None, :]
     summary = runtime.believe(
         tracker, last_action, similarities, likelihood, v=frame.v, w=frame.w, dt=dt
     )

@@ -146,13 +146,6 @@ class TopometricParams:
       at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
       can be metres off in a plain corridor with a standard deviation of centimetres (its
       measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
-    * ``depth_belief`` (0.0), ``depth_belief_sigma`` (0.2), ``depth_belief_shift`` (3 rays):
-      with ``depth_belief`` above 0, the belief's update weighs every state by how well the
-      frame's depth profile agrees with the profiles taught with its images, ray by ray from
-      the same spot (:func:`~server.navigation.scanmatch.profile_agreement`, log ranges within
-      the depth's reach, differences of ``depth_belief_sigma`` halving a ray, shifted up to
-      ``depth_belief_shift`` rays either way; a place by the best of its spin images): agreement
-      ``a`` in [0, 1] weighs ``exp(-depth_belief * (1 - a))``. 0 turns it off.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -203,9 +196,6 @@ class TopometricParams:
     end_depth: bool = True
     end_depth_m: float = 0.2
     end_depth_rad: float = 0.15
-    depth_belief: float = 0.0
-    depth_belief_sigma: float = 0.2
-    depth_belief_shift: int = 3
     link_sigma: float = 0.15
     restart_m: float = 2.0
     restart_s: float = 10.0

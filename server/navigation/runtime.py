@@ -19,7 +19,6 @@ from server.domain import TourGraph
 from server.navigation.geometry import TaughtPaths
 from server.navigation.params import NavigationParams
 from server.navigation.pathtrack import PathEstimate, PathTracker, path_likelihood
-from server.navigation.scanmatch import log_ranges, profile_agreement
 from server.policy.costs import cost_to_goal
 from server.vision.distinctiveness import ImageLayout, image_entropy
 from server.vision.features import ImageFeatures
@@ -89,7 +88,6 @@ class TourRuntime:
         # the depth profiles taught with the images (canonical index -> metres, left to right),
         # set by whoever built the runtime when the robot sent them
         self.taught_depth: dict[int, npt.NDArray[np.float32]] = {}
-        self._taught_log: tuple[int, npt.NDArray[np.float32]] | None = None
         self._links: dict[tuple[int, int], float | None] = {}
         self._links_lock = threading.Lock()
         self._departure_spins: dict[int, int | None] = {}
@@ -156,51 +154,6 @@ class TourRuntime:
             self.params.topometric.path_evidence,
         )
         return np.ones(g.n_fine) if out is None else out
-
-    def depth_evidence(self, depth: npt.ArrayLike | None) -> FloatArray:
-        """``(n_fine,)`` what the frame's depth profile ``(n_rays,)`` says of every state
-        (``TopometricParams.depth_belief``): each taught image's profile's agreement ``a``
-        with it (:func:`~server.navigation.scanmatch.profile_agreement`) weighs
-        ``exp(-depth_belief * (1 - a))``, a place the best of its spin images'; an image taught
-        without a profile weighs as the frame's median image. All ones when it is off, without
-        a depth profile, without taught ones, or when the rays do not match the taught ones'."""
-        tp = self.params.topometric
-        g = self.graph
-        if tp.depth_belief <= 0 or depth is None:
-            return np.ones(g.n_fine)
-        taught = self._taught_log_ranges()
-        if taught is None:
-            return np.ones(g.n_fine)
-        q = log_ranges(depth, tp.scan_fit.max_range_m)
-        if q.shape != (taught.shape[1],):
-            return np.ones(g.n_fine)
-        agree = profile_agreement(
-            q, taught, sigma=tp.depth_belief_sigma, max_shift=tp.depth_belief_shift
-        )
-        agree = np.where(np.isnan(agree), np.nanmedian(agree), agree)
-        floor = math.exp(-tp.depth_belief)
-        return fine_likelihood(np.exp(-tp.depth_belief * (1.0 - agree)), g, floor=floor)
-
-    def _taught_log_ranges(self) -> npt.NDArray[np.float32] | None:
-        """``(n_images, n_rays)`` float32 the taught profiles through
-        :func:`~server.navigation.scanmatch.log_ranges` (NaN rows for images taught without
-        one), made again when :attr:`taught_depth` has grown; ``None`` without any or when
-        their ray counts differ."""
-        n = len(self.taught_depth)
-        if n == 0:
-            return None
-        made = self._taught_log
-        if made is not None and made[0] == n:
-            return made[1]
-        rays = {len(r) for r in self.taught_depth.values()}
-        if len(rays) != 1:
-            return None
-        out = np.full((self.graph.n_images, rays.pop()), np.nan, dtype=np.float32)
-        max_range = self.params.topometric.scan_fit.max_range_m
-        for image, ranges in list(self.taught_depth.items()):
-            out[image] = log_ranges(ranges, max_range)
-        self._taught_log = (n, out)
-        return out
 
     def link(self, edge_in: int, edge_out: int) -> float | None:
         """The heading (rad) of ``edge_in``'s last image in ``edge_out``'s frame, where
