@@ -1,11 +1,19 @@
 """``python -m server.bench.nav_table RESULT.json [BEFORE.json]``: the figures of a
 ``bench navigate`` run as Markdown tables (per home and condition, pooled, failures by cause and
 by the behaviour at the end), and trial by trial what changed against an earlier run of the
-same plans, seed and trials."""
+same plans, seed and trials.
+
+``python -m server.bench.nav_table --pairs AFTER.json:BEFORE.json [AFTER.json:BEFORE.json ...]``:
+a change measured on several seeds, each run against the code before it on the same trials:
+per pair and pooled, arrivals and wrong arrivals before and after, the trials fixed and
+broken, and how often a split of fixed and broken at least that uneven comes by chance (the
+exact two-sided sign test on the trials whose outcome changed). A change moves 30-60 of 72
+trials onto another course, so one seed's difference says little (docs/navigation.md 3.1)."""
 
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections import Counter
 from pathlib import Path
@@ -58,8 +66,72 @@ def changes(before: dict[str, Any], after: dict[str, Any]) -> str:
     return f"{len(a.keys() & b.keys())} trials in both: {head}\n\n" + "\n".join(lines)
 
 
+def sign_test(fixed: int, broken: int) -> float:
+    """Two-sided exact sign test: the chance, with fixed and broken equally likely for each
+    changed trial, of a split at least as uneven as ``fixed`` against ``broken`` (1 when
+    none changed)."""
+    if fixed < 0 or broken < 0:
+        raise ValueError("counts must be >= 0")
+    n = fixed + broken
+    if n == 0:
+        return 1.0
+    k = min(fixed, broken)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2**n
+    return min(1.0, 2.0 * tail)
+
+
+def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, int]:
+    """Arrivals and wrong arrivals of two runs of the same trials, and the trials in both
+    that arrived in one only (``fixed``: after only; ``broken``: before only)."""
+
+    def rows(r: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
+        return {(x["plan"], x["condition"], x["trial"]): x for g in groups(r) for x in g["rows"]}
+
+    a, b = rows(before), rows(after)
+    both = a.keys() & b.keys()
+    if not both:
+        raise ValueError("the two runs share no trials: not the same plans, seed and trials")
+    return {
+        "trials": len(both),
+        "before": sum(bool(a[k]["success"]) for k in both),
+        "after": sum(bool(b[k]["success"]) for k in both),
+        "wrong_before": sum(a[k]["cause"] == "wrong place" for k in both),
+        "wrong_after": sum(b[k]["cause"] == "wrong place" for k in both),
+        "fixed": sum(bool(b[k]["success"]) and not a[k]["success"] for k in both),
+        "broken": sum(bool(a[k]["success"]) and not b[k]["success"] for k in both),
+    }
+
+
+def pairs_table(named: list[tuple[str, dict[str, int]]]) -> str:
+    """Markdown: one row per ``(name, paired(...))`` and the pooled row, with the sign test."""
+    out = [
+        "| pair | trials | arrived after / before | wrong after / before | fixed | broken | "
+        "sign test p |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    keys = ("trials", "before", "after", "wrong_before", "wrong_after", "fixed", "broken")
+    total = {k: sum(c[k] for _, c in named) for k in keys}
+    for name, c in [*named, ("**pooled**", total)]:
+        out.append(
+            f"| {name} | {c['trials']} | {c['after']} / {c['before']} | "
+            f"{c['wrong_after']} / {c['wrong_before']} | {c['fixed']} | {c['broken']} | "
+            f"{sign_test(c['fixed'], c['broken']):.2f} |"
+        )
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
+    if args and args[0] == "--pairs":
+        named = []
+        for pair in args[1:]:
+            after, sep, before = pair.partition(":")
+            if not sep:
+                raise SystemExit(f"--pairs takes AFTER.json:BEFORE.json, got {pair!r}")
+            runs = [json.loads(Path(f).read_text()) for f in (before, after)]
+            named.append((f"{Path(after).stem} / {Path(before).stem}", paired(*runs)))
+        print(pairs_table(named))
+        return
     result = json.loads(Path(args[0]).read_text())
     print(table(result))
     if len(args) > 1:
