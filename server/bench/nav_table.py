@@ -24,6 +24,11 @@ def groups(result: dict[str, Any]) -> list[dict[str, Any]]:
     return result.get("results") or [result]
 
 
+def trial_rows(result: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
+    """A run's trials by (plan, condition, trial number)."""
+    return {(x["plan"], x["condition"], x["trial"]): x for g in groups(result) for x in g["rows"]}
+
+
 def table(result: dict[str, Any]) -> str:
     out = [
         "| home | condition | success | 95 % interval | wrong | path ratio p50 / p90 | "
@@ -44,10 +49,7 @@ def table(result: dict[str, Any]) -> str:
 
 
 def changes(before: dict[str, Any], after: dict[str, Any]) -> str:
-    def rows(r: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
-        return {(x["plan"], x["condition"], x["trial"]): x for g in groups(r) for x in g["rows"]}
-
-    a, b = rows(before), rows(after)
+    a, b = trial_rows(before), trial_rows(after)
     moved: Counter[str] = Counter()
     lines = []
     for key in sorted(a.keys() & b.keys()):
@@ -84,10 +86,7 @@ def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, int]:
     """Arrivals and wrong arrivals of two runs of the same trials, and the trials in both
     that arrived in one only (``fixed``: after only; ``broken``: before only)."""
 
-    def rows(r: dict[str, Any]) -> dict[tuple[str, str, int], dict[str, Any]]:
-        return {(x["plan"], x["condition"], x["trial"]): x for g in groups(r) for x in g["rows"]}
-
-    a, b = rows(before), rows(after)
+    a, b = trial_rows(before), trial_rows(after)
     both = a.keys() & b.keys()
     if not both:
         raise ValueError("the two runs share no trials: not the same plans, seed and trials")
