@@ -7,8 +7,10 @@ same plans, seed and trials.
 a change measured on several seeds, each run against the code before it on the same trials:
 per pair and pooled, arrivals and wrong arrivals before and after, the trials fixed and
 broken, and how often a split of fixed and broken at least that uneven comes by chance (the
-exact two-sided sign test on the trials whose outcome changed). A change moves 30-60 of 72
-trials onto another course, so one seed's difference says little (docs/navigation.md 3.1)."""
+exact two-sided sign test on the trials whose outcome changed); the same for wrong arrivals:
+trials wrong before only (``wrong_gone``) and after only (``wrong_new``), with their sign
+test. A change moves 30-60 of 72 trials onto another course, so one seed's difference says
+little (docs/navigation.md 3.1)."""
 
 from __future__ import annotations
 
@@ -83,8 +85,9 @@ def sign_test(fixed: int, broken: int) -> float:
 
 
 def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, int]:
-    """Arrivals and wrong arrivals of two runs of the same trials, and the trials in both
-    that arrived in one only (``fixed``: after only; ``broken``: before only)."""
+    """Arrivals and wrong arrivals of two runs of the same trials, the trials in both that
+    arrived in one only (``fixed``: after only; ``broken``: before only) and those that went to
+    a wrong place in one only (``wrong_gone``: before only; ``wrong_new``: after only)."""
 
     a, b = trial_rows(before), trial_rows(after)
     both = a.keys() & b.keys()
@@ -94,34 +97,48 @@ def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, int]:
         "trials": len(both),
         "before": sum(bool(a[k]["success"]) for k in both),
         "after": sum(bool(b[k]["success"]) for k in both),
-        "wrong_before": sum(a[k]["cause"] == "wrong place" for k in both),
-        "wrong_after": sum(b[k]["cause"] == "wrong place" for k in both),
+        "wrong_before": sum(wrong(a[k]) for k in both),
+        "wrong_after": sum(wrong(b[k]) for k in both),
         "fixed": sum(bool(b[k]["success"]) and not a[k]["success"] for k in both),
         "broken": sum(bool(a[k]["success"]) and not b[k]["success"] for k in both),
+        "wrong_gone": sum(wrong(a[k]) and not wrong(b[k]) for k in both),
+        "wrong_new": sum(wrong(b[k]) and not wrong(a[k]) for k in both),
     }
+
+
+def wrong(row: dict[str, Any]) -> bool:
+    """Whether a trial ended at a wrong place."""
+    return bool(row["cause"] == "wrong place")
 
 
 def pairs_table(named: list[tuple[str, dict[str, int]]]) -> str:
     """Markdown: one row per ``(name, paired(...))`` and the pooled row, with the sign test."""
     out = [
         "| pair | trials | arrived after / before | wrong after / before | fixed | broken | "
-        "sign test p |",
-        "|---|---|---|---|---|---|---|",
+        "sign test p | wrong gone | wrong new | sign test p (wrong) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    keys = ("trials", "before", "after", "wrong_before", "wrong_after", "fixed", "broken")
-    total = {k: sum(c[k] for _, c in named) for k in keys}
+    if not named:
+        raise ValueError("no pairs: give at least one AFTER.json:BEFORE.json")
+    total = {k: sum(c[k] for _, c in named) for k in named[0][1]}
     for name, c in [*named, ("**pooled**", total)]:
         out.append(
             f"| {name} | {c['trials']} | {c['after']} / {c['before']} | "
             f"{c['wrong_after']} / {c['wrong_before']} | {c['fixed']} | {c['broken']} | "
-            f"{sign_test(c['fixed'], c['broken']):.2f} |"
+            f"{sign_test(c['fixed'], c['broken']):.2f} | {c['wrong_gone']} | {c['wrong_new']} | "
+            f"{sign_test(c['wrong_gone'], c['wrong_new']):.2f} |"
         )
     return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
-    if args and args[0] == "--pairs":
+    if not args or args == ["--pairs"]:
+        raise SystemExit(
+            "usage: nav_table RESULT.json [BEFORE.json] | "
+            "nav_table --pairs AFTER.json:BEFORE.json [AFTER.json:BEFORE.json ...]"
+        )
+    if args[0] == "--pairs":
         named = []
         for pair in args[1:]:
             after, sep, before = pair.partition(":")

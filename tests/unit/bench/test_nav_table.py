@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from server.bench.nav_table import main, paired, sign_test
+from server.bench.nav_table import main, paired, pairs_table, sign_test
 
 
 def naive_sign_test(fixed: int, broken: int) -> float:
@@ -72,6 +72,8 @@ def test_paired_counts_arrivals_wrong_places_fixed_and_broken() -> None:
         "wrong_after": 1,
         "fixed": 2,
         "broken": 2,
+        "wrong_gone": 1,
+        "wrong_new": 1,
     }
 
 
@@ -96,8 +98,13 @@ def test_pairs_prints_each_seed_and_the_pooled_row(
         files[name].write_text(json.dumps(run(outcomes)))
     main(["--pairs", f"{files['a_new']}:{files['a_old']}", f"{files['b_new']}:{files['b_old']}"])
     lines = capsys.readouterr().out.splitlines()
-    assert lines[2] == "| a_new / a_old | 3 | 3 / 1 | 0 / 0 | 2 | 0 | 0.50 |"
-    assert lines[3] == "| b_new / b_old | 2 | 1 / 2 | 1 / 0 | 0 | 1 | 1.00 |"
-    assert lines[4] == "| **pooled** | 5 | 4 / 3 | 1 / 0 | 2 | 1 | 1.00 |"
+    assert lines[2] == "| a_new / a_old | 3 | 3 / 1 | 0 / 0 | 2 | 0 | 0.50 | 0 | 0 | 1.00 |"
+    assert lines[3] == "| b_new / b_old | 2 | 1 / 2 | 1 / 0 | 0 | 1 | 1.00 | 0 | 1 | 1.00 |"
+    assert lines[4] == "| **pooled** | 5 | 4 / 3 | 1 / 0 | 2 | 1 | 1.00 | 0 | 1 | 1.00 |"
     with pytest.raises(SystemExit, match=r"AFTER\.json:BEFORE\.json"):
         main(["--pairs", str(files["a_new"])])
+    for nothing in ([], ["--pairs"]):
+        with pytest.raises(SystemExit, match=r"usage: .*--pairs AFTER\.json:BEFORE\.json"):
+            main(nothing)
+    with pytest.raises(ValueError, match="at least one"):
+        pairs_table([])
