@@ -121,21 +121,14 @@ def update(belief: npt.ArrayLike, likelihood: npt.ArrayLike) -> FloatArray:
 
 
 def fine_likelihood(
-    image_sim: npt.ArrayLike,
-    graph: TourGraph,
-    *,
-    floor: float = 1e-3,
-    views_power: float = math.inf,
+    image_sim: npt.ArrayLike, graph: TourGraph, *, floor: float = 1e-3
 ) -> FloatArray:
     """Observation likelihood of every fine state from the engine's per-image similarities.
 
     ``image_sim`` is ``(n_images,)`` in canonical image order (``graph.image_ids``), values >= 0
     (the engine's eq. 4 similarities in [0, 1]). A location gets the max over its images
-    (001 eq. 2; ``views_power`` infinite), or with a finite ``views_power`` p > 0 their power
-    mean ``mean(s ** p) ** (1 / p)`` (p = 1: the mean, the likelihood of a robot facing any of
-    the spin views' headings alike; the larger p, the nearer the max); an edge image its own
-    similarity; a location with no images gets ``floor``. Every value is raised to at least
-    ``floor``. Returns ``(n_fine,) float64 > 0``.
+    (001 eq. 2); an edge image its own similarity; a location with no images gets ``floor``.
+    Every value is raised to at least ``floor``. Returns ``(n_fine,) float64 > 0``.
     """
     sim = np.asarray(image_sim, dtype=np.float64)
     if sim.shape != (graph.n_images,):
@@ -152,14 +145,7 @@ def fine_likelihood(
     has = counts > 0
     if n_loc_images > 0:
         starts = (np.cumsum(counts) - counts)[has]
-        views = sim[:n_loc_images]
-        if not views_power > 0:
-            raise InvalidLikelihoodError(f"views_power must be > 0, got {views_power}")
-        if math.isinf(views_power):
-            out[:L][has] = np.maximum.reduceat(views, starts)
-        else:
-            sums = np.add.reduceat(views**views_power, starts)
-            out[:L][has] = (sums / counts[has]) ** (1.0 / views_power)
+        out[:L][has] = np.maximum.reduceat(sim[:n_loc_images], starts)
     out[L:] = sim[n_loc_images:]
     np.maximum(out, floor, out=out)
     return out
@@ -188,10 +174,6 @@ class TrackerParams:
       frame's largest one (scale-free; one bad match can never zero out the true state). An
       all-zero frame is treated as no information (prediction only).
     * ``likelihood_power`` (1.0): ``L ** power`` sharpens (> 1) or tempers (< 1) the engine.
-    * ``place_views_power`` (infinite): how a place's likelihood pools its spin views
-      (:func:`fine_likelihood`'s ``views_power``): infinite, the best of them (001 eq. 2); a
-      finite p > 0, their power mean, which no longer lets one of ~36 views facing every way
-      outbid an edge image taught facing one way.
     * ``changed_likelihood_power`` (0.75): with more than one appearance model, the power once
       the change evidence is 1 (the light or the season changed: the models' likelihoods are
       less sure of themselves, and one look-alike frame must not take the belief from where
@@ -217,7 +199,6 @@ class TrackerParams:
     surprise_teleport: float = 0.1
     likelihood_floor: float = 1e-6
     likelihood_power: float = 1.0
-    place_views_power: float = math.inf
     changed_likelihood_power: float | None = 0.75
     motion_quantum: float = 0.02
     top_k: int = 5
@@ -238,8 +219,6 @@ class TrackerParams:
         changed = self.changed_likelihood_power
         if not (self.likelihood_power > 0 and (changed is None or changed > 0)):
             raise ValueError("likelihood_power and changed_likelihood_power must be > 0")
-        if not self.place_views_power > 0:
-            raise ValueError("place_views_power must be > 0 (infinite: the best view)")
         if self.top_k < 1 or self.smoother_lag < 0:
             raise ValueError("top_k must be >= 1 and smoother_lag >= 0")
 

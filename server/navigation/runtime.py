@@ -342,9 +342,7 @@ class TourRuntime:
         (:meth:`TourIndex.query_models`) and the ``(K, n_fine)`` likelihoods they give, one row
         per model, for :meth:`Tracker.step` to weigh."""
         sims = self.index.query_models(features, n_states=self.graph.n_states)
-        power = self.params.tracker.place_views_power
-        rows = [fine_likelihood(s.image, self.graph, views_power=power) for s in sims]
-        return sims, np.stack(rows)
+        return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
 
     def believe(
         self,

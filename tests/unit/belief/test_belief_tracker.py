@@ -208,9 +208,3 @@ def test_graph_without_edges() -> None:
     tracker = Tracker(BeliefModel(graph))
     s = tracker.step(Action.navigate(), np.array([0.2, 0.9]), v=0.3, dt=0.2)
     assert s.map_state == 1 and s.along_edge == () and s.best_image.shape == (0,)
-
-
-@pytest.mark.parametrize("power", [0.0, -1.0, float("nan")])
-def test_place_views_power_must_be_positive(power: float) -> None:
-    with pytest.raises(ValueError, match="place_views_power must be > 0"):
-        TrackerParams(place_views_power=power)

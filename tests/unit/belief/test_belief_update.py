@@ -88,33 +88,6 @@ def test_fine_likelihood_max_over_location_images_and_floor() -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    sim=st.lists(st.floats(0, 1), min_size=9, max_size=9),
-    power=st.floats(0.25, 8),
-)
-def test_fine_likelihood_power_mean_of_location_images(sim: list[float], power: float) -> None:
-    locs = (location("a", 3), Location("empty", ()), location("b", 2))
-    graph = TourGraph(locs, (edge(0, 2, 4),))
-    s = np.array(sim)
-    lik = fine_likelihood(s, graph, floor=0.01, views_power=power)
-    # naive reference: each location's images one by one
-    ref = np.full(graph.n_fine, 0.01)
-    images: dict[int, list[float]] = {}
-    for i, f in enumerate(graph.image_fine):
-        images.setdefault(int(f), []).append(float(s[i]))
-    for f, values in images.items():
-        pooled = (sum(v**power for v in values) / len(values)) ** (1 / power)
-        ref[f] = max(0.01, pooled if f < graph.n_locations else values[0])
-    np.testing.assert_allclose(lik, ref, rtol=1e-9)
-    # never above the best view; edges untouched
-    best = fine_likelihood(s, graph, floor=0.01)
-    assert np.all(lik <= best + 1e-12)
-    np.testing.assert_allclose(lik[graph.n_locations :], best[graph.n_locations :])
-    with pytest.raises(InvalidLikelihoodError, match="views_power"):
-        fine_likelihood(s, graph, views_power=0.0)
-
-
-@settings(max_examples=60, deadline=None)
 @given(b=beliefs, action=actions, advance=st.floats(0, 4))
 def test_predict_keeps_mass_and_non_negativity(
     b: np.ndarray, action: Action, advance: float
