@@ -93,22 +93,20 @@ def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, int]:
     both = a.keys() & b.keys()
     if not both:
         raise ValueError("the two runs share no trials: not the same plans, seed and trials")
+    # the flag ``bench navigate`` counts its wrong arrivals by
+    wa = {k: bool(a[k]["wrong_arrival"]) for k in both}
+    wb = {k: bool(b[k]["wrong_arrival"]) for k in both}
     return {
         "trials": len(both),
         "before": sum(bool(a[k]["success"]) for k in both),
         "after": sum(bool(b[k]["success"]) for k in both),
-        "wrong_before": sum(wrong(a[k]) for k in both),
-        "wrong_after": sum(wrong(b[k]) for k in both),
+        "wrong_before": sum(wa.values()),
+        "wrong_after": sum(wb.values()),
         "fixed": sum(bool(b[k]["success"]) and not a[k]["success"] for k in both),
         "broken": sum(bool(a[k]["success"]) and not b[k]["success"] for k in both),
-        "wrong_gone": sum(wrong(a[k]) and not wrong(b[k]) for k in both),
-        "wrong_new": sum(wrong(b[k]) and not wrong(a[k]) for k in both),
+        "wrong_gone": sum(wa[k] and not wb[k] for k in both),
+        "wrong_new": sum(wb[k] and not wa[k] for k in both),
     }
-
-
-def wrong(row: dict[str, Any]) -> bool:
-    """Whether a trial ended at a wrong place."""
-    return bool(row["cause"] == "wrong place")
 
 
 def pairs_table(named: list[tuple[str, dict[str, int]]]) -> str:

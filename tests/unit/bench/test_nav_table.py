@@ -53,6 +53,7 @@ def run(outcomes: list[str | None]) -> dict[str, Any]:
             "trial": i,
             "success": cause is None,
             "cause": cause,
+            "wrong_arrival": cause == "wrong place",
             "goal": "couch",
             "time_s": 10.0,
         }
