@@ -123,7 +123,7 @@ def _trial(
     from robot_client.sim import SimulatedRobot, SimWorld, load_plan
     from robot_client.sim.world import Pose
     from robot_client.trial import run_trial
-    from server.bench.nav_sweep import tracer, write_trace
+    from server.bench.nav_sweep import ANSWER_WAIT_S, tracer, write_trace
     from server.process import ADMIN, start_server
 
     plan = load_plan(scenario.plan)
@@ -135,7 +135,7 @@ def _trial(
             with TeachRepeatClient(server.url, ADMIN) as admin:
                 token = admin.register_robot("carried").token
             with (
-                TeachRepeatClient(server.url, token) as client,
+                TeachRepeatClient(server.url, token, timeout_s=ANSWER_WAIT_S) as client,
                 SimWorld(plan, condition=args.condition, seed=seed) as world,
             ):
                 robot = SimulatedRobot(world, Pose(first.x, first.y, first.yaw), seed=seed)

@@ -43,6 +43,14 @@ one step per robot (the dashboard's; each trial has its own robot). Neither chan
 PREPARE_S = 1800.0
 """How long a worker waits for its server to prepare a freshly taught tour (its first goto)."""
 
+ANSWER_WAIT_S = 600.0
+"""How long a benchmark's simulated robot waits for the server's answer to one request (s of
+wall clock). The simulated world stands still while it waits, so a slow answer (a loaded
+machine) changes nothing in the trial, where giving up would: the robot's client resends the
+frame, which makes the trial depend on the machine's load, and a 10 s wait (the client's
+default, right for a real robot) ended whole runs when several ran at once. This long only
+catches a server that hangs."""
+
 _RECORDING_CODE = (
     "robot_client/guide.py",
     "robot_client/tour_recording.py",
@@ -148,7 +156,8 @@ class Worker:
             t0 = time.perf_counter()
             recording = TourRecording.load(Path(self.config.recordings[plan]))
             name = f"teacher-{plan}"
-            with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
+            token = self.server.register_robot(name)
+            with TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S) as client:
                 steps = recording.steps
                 if self.config.no_depth:  # a one-webcam robot taught it: no depth profiles
                     steps = tuple(replace(step, depth=None) for step in steps)
@@ -196,7 +205,8 @@ class Worker:
         name = f"trial-{spec.plan}-{spec.condition}-{spec.trial}"
         t0 = time.perf_counter()
         trace: list[dict[str, Any]] = []
-        with TeachRepeatClient(self.server.url, self.server.register_robot(name)) as client:
+        token = self.server.register_robot(name)
+        with TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S) as client:
             robot = SimulatedRobot(world, start, seed=noise)
             result = run_trial(
                 client,

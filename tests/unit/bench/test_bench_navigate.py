@@ -201,3 +201,41 @@ def test_a_worker_says_it_is_done_only_once_its_server_and_homes_are_closed(
     monkeypatch.setattr(nav_sweep.signal, "signal", lambda *a: None)  # not this process's
     nav_sweep._serve(None, tasks, Results())  # type: ignore[arg-type]
     assert said == ["row", "closed", "teach_s"]
+
+
+def test_a_trial_waits_for_a_slow_answer_instead_of_resending_the_frame(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The simulated world stands still while the robot waits for the server, so a loaded
+    machine must change nothing in a trial: the robot's client waits for every answer (up to
+    ``ANSWER_WAIT_S``), not the 10 s a real robot waits before it resends the frame (which
+    made trials depend on the load, and ended whole runs when several ran at once). The
+    worker's server, tour and world stand in here: only the client it opens is looked at."""
+    import robot_client.client
+    from server.bench import nav_sweep
+
+    opened: list[dict[str, object]] = []
+
+    class Opened(Exception):
+        pass
+
+    def client(url: str, token: str, **kwargs: object) -> object:
+        opened.append(kwargs)
+        raise Opened
+
+    class Server:
+        url = "http://127.0.0.1:1"
+
+        def register_robot(self, name: str) -> str:
+            return "token"
+
+    worker = object.__new__(nav_sweep.Worker)
+    worker.plans = [load_plan(PLANS / "two_rooms.json")]
+    worker.server = Server()  # type: ignore[assignment]
+    worker.config = nav_sweep.SweepConfig(("two_rooms.json",), ("none.npz",), 0, 10, (), None)
+    worker._tours, worker._worlds = {0: object()}, {(0, "same"): object()}
+    monkeypatch.setattr(robot_client.client, "TeachRepeatClient", client)
+    with pytest.raises(Opened):
+        worker.run(nav_sweep.TrialSpec(0, "same", 0))
+    assert opened == [{"timeout_s": nav_sweep.ANSWER_WAIT_S}]
+    assert nav_sweep.ANSWER_WAIT_S >= 300  # minutes: only a hung server is given up on
