@@ -81,6 +81,8 @@ class TopometricParams:
       freedom, 11.34: 99 %); along the path it is trusted to ``scan_along_sigma_m`` (0.3 m)
       only (a corridor's profile aligns as well one door further on: a tracker that trusted
       it stood "at the end" of a corridor 2.8 m short of it, the belief's word outvoted).
+      ``scan_along_floor_m`` (0: none): the fits are never fused past this along-path
+      standard deviation (each is the same corridor again, not a new measurement).
       While not locked the fit starts from several guesses, shifted
       sideways by ``join_lateral_m`` (joining the path from up to 1.5 m beside it).
     * ``rival_m`` (0.3 m), ``rival_frames`` (8): while locked, the profile is also aligned from
@@ -173,6 +175,7 @@ class TopometricParams:
     scan_sigma_rad: float = 0.02
     scan_gate: float = 11.34
     scan_along_sigma_m: float = 0.3
+    scan_along_floor_m: float = 0.0
     join_lateral_m: tuple[float, ...] = (0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5)
     depth_fov_deg: float = 90.0
     rival_m: float = 0.3
@@ -513,6 +516,7 @@ class PathTracker:
         if best is None:
             return 0
         measured, R = self._measured(*best, h)
+        R = self._along_floored(R, h)
         up = update_pose(self.mean, self.cov, measured, R, gate=p.scan_gate)
         self.refuted = self.refuted + 1 if locked and not up.used else 0
         if self.refuted >= p.refute_fits:
@@ -612,6 +616,26 @@ class PathTracker:
         t = np.array([math.cos(heading), math.sin(heading)])
         R[:2, :2] += p.scan_along_sigma_m**2 * np.outer(t, t)
         return measured, R
+
+    def _along_floored(self, R: FloatArray, heading: float) -> FloatArray:
+        """``R`` (a scan fit's covariance) widened along the path at ``heading`` so that the
+        fit cannot take the estimate's along-path standard deviation below
+        ``scan_along_floor_m`` (frame after frame a corridor's profile aligns at the same
+        wrong point as well as at the right one: fused as independent, they made an estimate
+        sure to 4 cm of where it was 3 m off); unchanged while the floor is 0."""
+        floor = self.p.scan_along_floor_m
+        if floor <= 0:
+            return R
+        P = float(path_frame_cov(self.cov, heading)[0, 0])
+        t = np.array([math.cos(heading), math.sin(heading)])
+        r = float(t @ R[:2, :2] @ t)
+        var = floor**2
+        # already as sure as the floor: nothing along the path from the fit
+        need = 1e6 if var * (1 + 1e-9) >= P else 1.0 / (1.0 / var - 1.0 / P)
+        out = R.copy()
+        if need > r:
+            out[:2, :2] += (need - r) * np.outer(t, t)
+        return out
 
     def _scan_images(self, path: EdgePath, along: float) -> list[int]:
         """The taught images to match the depth profile against: the one nearest ``along``;
