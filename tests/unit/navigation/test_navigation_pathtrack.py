@@ -209,13 +209,14 @@ def test_a_tracker_whose_own_alignment_the_gate_refuses_fit_after_fit_is_widened
     assert all(abs(lateral) < 0.05 and locked for lateral, locked in trace[moved + 6 :])
 
 
-def standing_sds(floor: float, frames: int = 80) -> tuple[float, float]:
+def standing_sds(floor: float, *, belief: bool, frames: int = 80) -> tuple[float, float]:
     """(along, lateral) standard deviations of a tracker on the path, the robot standing 1 m
-    along it in the room, after ``frames`` frames of the same depth profile, the fits
-    floored at ``floor``."""
+    along it in the room, after ``frames`` frames of the same depth profile (and with
+    ``belief``, the belief's word on every frame: image 20, 1 m along), floored at
+    ``floor``."""
     start = np.array([0.6, 1.5, 0.0])
     path, depths = taught_edge(start, walls=WALLS)
-    tracker = depth_tracker(path, depths, replace(TopometricParams(), scan_along_floor_m=floor))
+    tracker = depth_tracker(path, depths, replace(TopometricParams(), along_floor_m=floor))
     decision = Decision(Action.navigate(0), 1, {}, 0)
     depth = room_profile(*compose(start, np.array([1.0, 0.0, 0.0])), walls=WALLS)
     for step in range(frames):
@@ -226,7 +227,7 @@ def standing_sds(floor: float, frames: int = 80) -> tuple[float, float]:
             w=0.0,
             dt=0.1 if step else 0.0,
             decision=decision,
-            along_belief=20 if step == 0 else None,  # image 20: 1 m along
+            along_belief=20 if step == 0 or belief else None,
             depth=depth,
         )
     assert est is not None and est.locked and abs(est.along_m - 1.0) < 0.05
@@ -237,11 +238,12 @@ def test_the_same_profile_fitted_again_and_again_does_not_pin_the_estimate_along
     """A robot that stands (or drives along a corridor) fits the same profile frame after
     frame, each fit as wrong along the path as the last (a corridor's aligns one door
     further on as well); fused as independent they make the estimate ever surer along the
-    path: 4 cm after 80 frames here, as in the simulated office where it was 3 m off. The
-    floor (``scan_along_floor_m``) keeps it no surer than one fit, and across the path the
-    fits still bring it in."""
-    free, _ = standing_sds(0.0)
-    along, lateral = standing_sds(0.3)
-    assert free < 0.06
-    assert 0.3 * 0.99 <= along <= 0.31
-    assert lateral < 0.03
+    path: 4 cm after 80 frames here, as in the simulated office where it was 3 m off; so
+    does the belief's most likely image given every frame. The floor (``along_floor_m``)
+    keeps it no surer than one fit, and across the path the fits still bring it in."""
+    for belief in (False, True):
+        free, _ = standing_sds(0.0, belief=belief)
+        along, lateral = standing_sds(0.3, belief=belief)
+        assert free < 0.06
+        assert 0.3 * 0.99 <= along <= 0.31
+        assert lateral < 0.03
