@@ -146,9 +146,6 @@ class TopometricParams:
       at most the depth's reach (``scan_fit.max_range_m``). A tracker's along-path position
       can be metres off in a plain corridor with a standard deviation of centimetres (its
       measurements there repeat each other): robots "arrived" 2.5-3.4 m short of the end.
-    * ``along_floor_m`` (0: none): neither a depth-profile fit nor the belief's most likely
-      image is fused past this along-path standard deviation (each frame they measure the
-      same again, not anew); the camera's directions (bearings) still may.
     * ``link_sigma`` (0.15 rad): how uncertain the turn between two edges at a place is,
       as read from their images.
     * ``restart_m`` (2.0 m), ``restart_s`` (10 s): a tracker that is not locked and puts the
@@ -176,7 +173,6 @@ class TopometricParams:
     scan_sigma_rad: float = 0.02
     scan_gate: float = 11.34
     scan_along_sigma_m: float = 0.3
-    along_floor_m: float = 0.0
     join_lateral_m: tuple[float, ...] = (0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5)
     depth_fov_deg: float = 90.0
     rival_m: float = 0.3
@@ -453,12 +449,14 @@ class PathTracker:
         path = self.paths[self.edge]
         k = int(np.clip(k, 0, path.n_images - 1))
         s = float(path.along[k])
-        h = path.heading_at(s)
-        least = self._along_least_var(h)
-        if math.isinf(least):
-            return
-        sigma = max(self.p.along_sigma, math.sqrt(least))
-        up = update_along(self.mean, self.cov, path.point_at(s), h, sigma, gate=self.p.gate)
+        up = update_along(
+            self.mean,
+            self.cov,
+            path.point_at(s),
+            path.heading_at(s),
+            self.p.along_sigma,
+            gate=self.p.gate,
+        )
         if up.used:
             self.mean, self.cov = up.mean, up.cov
 
@@ -515,12 +513,6 @@ class PathTracker:
         if best is None:
             return 0
         measured, R = self._measured(*best, h)
-        least = self._along_least_var(h)
-        t = np.array([math.cos(h), math.sin(h)])
-        along_var = float(t @ R[:2, :2] @ t)
-        if least > along_var:  # (widened by a finite amount: inf leaves it unbounded)
-            R = R.copy()
-            R[:2, :2] += min(least - along_var, 1e6) * np.outer(t, t)
         up = update_pose(self.mean, self.cov, measured, R, gate=p.scan_gate)
         self.refuted = self.refuted + 1 if locked and not up.used else 0
         if self.refuted >= p.refute_fits:
@@ -620,21 +612,6 @@ class PathTracker:
         t = np.array([math.cos(heading), math.sin(heading)])
         R[:2, :2] += p.scan_along_sigma_m**2 * np.outer(t, t)
         return measured, R
-
-    def _along_least_var(self, heading: float) -> float:
-        """The least variance (m^2) along the path at ``heading`` that a depth-profile fit or
-        the belief's image may be fused with, so that neither takes the estimate's along-path
-        standard deviation below ``along_floor_m``: both measure the same thing again frame
-        after frame (a corridor's profile aligns one door further on as well, every frame;
-        the belief's image holds the tracker's own word), and fused as independent they made
-        an estimate sure to 4 cm of where it was 3 m off. 0 while the floor is 0; infinite
-        once the estimate is that sure (nothing along the path from them then)."""
-        floor = self.p.along_floor_m
-        if floor <= 0:
-            return 0.0
-        var = floor**2
-        P = float(path_frame_cov(self.cov, heading)[0, 0])
-        return math.inf if var * (1 + 1e-9) >= P else 1.0 / (1.0 / var - 1.0 / P)
 
     def _scan_images(self, path: EdgePath, along: float) -> list[int]:
         """The taught images to match the depth profile against: the one nearest ``along``;
