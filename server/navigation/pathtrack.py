@@ -131,12 +131,11 @@ class TopometricParams:
       the edge's exit zone at a robot standing on the taught spot, and never arrived).
     * ``path_evidence`` (4.0): while the tracker is locked, the belief's update weighs the
       images of the tracked edge near the tracked position (a Gaussian over metres along,
-      of the tracker's along-path standard deviation and at least ``path_along_m``) this many times
+      of the tracker's along-path standard deviation and at least 0.3 m) this many times
       more than every other state (:func:`path_likelihood`): the depth profile and the views
       matched along the edge are evidence the engine's similarities alone do not carry (a
       place's spin images, looking down a corridor, matched every frame driven along it, and
       the belief stayed at the place for 3.5 m of driving). 1 turns it off.
-    * ``path_along_m`` (0.3 m): the least width of that Gaussian.
     * ``end_depth`` (True), ``end_depth_m`` (0.2 m), ``end_depth_rad`` (0.15 rad): at the end
       of the edge into the goal by the tracker, where the place's depth profiles find no spot
       (a corridor's), the robot compares what its depth profile sees straight ahead (the rays
@@ -192,7 +191,6 @@ class TopometricParams:
     switch_frames: int = 5
     commit_mass: float = 0.25
     path_evidence: float = 4.0
-    path_along_m: float = 0.3
     arrive_m: float = 0.12
     arrive_stretch_m: float = 0.5
     end_depth: bool = True
@@ -692,17 +690,15 @@ def path_likelihood(
     along: npt.NDArray[np.float64],
     n_fine: int,
     ratio: float,
-    least_sigma: float = 0.3,
 ) -> FloatArray | None:
     """``(n_fine,)`` the tracker's word as a likelihood over the fine states: 1 at the images
     of the tracked edge (fine states from ``edge_first_fine``, their metres ``along`` it)
-    within the tracker's along-path uncertainty of its estimate (at least ``least_sigma``
-    metres), falling off as a Gaussian to
+    within the tracker's along-path uncertainty of its estimate, falling off as a Gaussian to
     ``1 / ratio`` elsewhere and everywhere else; ``None`` while the tracker is not locked (or
     ``ratio`` is 1: no evidence)."""
     if estimate is None or not estimate.locked or ratio <= 1.0:
         return None
-    sigma = max(estimate.sigma_along, least_sigma)
+    sigma = max(estimate.sigma_along, 0.3)
     near = np.exp(-0.5 * ((np.asarray(along) - estimate.along_m) / sigma) ** 2)
     out = np.full(n_fine, 1.0 / ratio)
     out[edge_first_fine : edge_first_fine + len(along)] += (1.0 - 1.0 / ratio) * near

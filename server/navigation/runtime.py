@@ -152,7 +152,6 @@ class TourRuntime:
             self.paths[estimate.edge].along,
             g.n_fine,
             self.params.topometric.path_evidence,
-            self.params.topometric.path_along_m,
         )
         return np.ones(g.n_fine) if out is None else out
 
