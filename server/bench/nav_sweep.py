@@ -146,18 +146,24 @@ class Worker:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def client(self, robot: str) -> Any:
+        """A client of this worker's server for ``robot``, registered afresh, that waits for
+        every answer (:data:`ANSWER_WAIT_S`)."""
+        from robot_client.client import TeachRepeatClient
+
+        token = self.server.register_robot(robot)
+        return TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S)
+
     def tour(self, plan: int) -> Any:
         """The taught graph of ``plan`` on this worker's server (taught on first use)."""
         if plan not in self._tours:
-            from robot_client.client import TeachRepeatClient
             from robot_client.guide import upload_tour
             from robot_client.tour_recording import TourRecording
 
             t0 = time.perf_counter()
             recording = TourRecording.load(Path(self.config.recordings[plan]))
             name = f"teacher-{plan}"
-            token = self.server.register_robot(name)
-            with TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S) as client:
+            with self.client(name) as client:
                 steps = recording.steps
                 if self.config.no_depth:  # a one-webcam robot taught it: no depth profiles
                     steps = tuple(replace(step, depth=None) for step in steps)
@@ -194,7 +200,6 @@ class Worker:
 
     def run(self, spec: TrialSpec) -> dict[str, Any]:
         """One trial; its row (``TrialResult.row()`` plus which trial and its wall seconds)."""
-        from robot_client.client import TeachRepeatClient
         from robot_client.sim import SimulatedRobot
         from robot_client.trial import draw_trial, run_trial
 
@@ -205,8 +210,7 @@ class Worker:
         name = f"trial-{spec.plan}-{spec.condition}-{spec.trial}"
         t0 = time.perf_counter()
         trace: list[dict[str, Any]] = []
-        token = self.server.register_robot(name)
-        with TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S) as client:
+        with self.client(name) as client:
             robot = SimulatedRobot(world, start, seed=noise)
             result = run_trial(
                 client,
