@@ -75,6 +75,24 @@ class TrialSpec:
 
 
 @dataclass(frozen=True)
+class TrialError:
+    """A trial that raised instead of finishing: which one, and the traceback (or what
+    became of its worker)."""
+
+    spec: TrialSpec
+    traceback: str
+
+    def row(self) -> dict[str, Any]:
+        """As the JSON's ``errors`` list holds it."""
+        return {
+            "plan_index": self.spec.plan,
+            "condition": self.spec.condition,
+            "trial": self.spec.trial,
+            "traceback": self.traceback,
+        }
+
+
+@dataclass(frozen=True)
 class SweepConfig:
     """What every worker needs (plain data: it crosses process boundaries)."""
 
@@ -364,9 +382,8 @@ def _serve(config: SweepConfig, tasks: Any, results: Any) -> None:
                 break
             try:
                 results.put(("row", spec, worker.run(spec)))
-            except Exception:
+            except Exception:  # reported; the next trial is run (its server may be fine)
                 results.put(("error", spec, traceback.format_exc()))
-                return
         teach_s = worker.teach_s
     results.put(("teach_s", None, teach_s))
 
@@ -377,21 +394,27 @@ def run_trials(
     *,
     workers: int = 1,
     on_row: Callable[[dict[str, Any]], None] | None = None,
-) -> tuple[list[dict[str, Any]], float]:
-    """Run every trial of ``specs`` on ``workers`` processes (1: in this process); the rows in
-    the order of ``specs`` and the seconds spent teaching the workers' servers.
-
-    Raises:
-        RuntimeError: a trial raised (the message has the worker's traceback).
-    """
+    on_error: Callable[[TrialError], None] | None = None,
+) -> tuple[list[dict[str, Any]], float, list[TrialError]]:
+    """Run every trial of ``specs`` on ``workers`` processes (1: in this process): the rows of
+    the trials that finished, in the order of ``specs``, the seconds spent teaching the
+    workers' servers, and the trials that raised (or whose worker died), in the order of
+    ``specs``. A trial that raises is reported (``on_error``) and the sweep goes on: an hour
+    of finished trials is not lost to one."""
     if workers <= 1:
-        rows = []
+        rows, errors = [], []
         with Worker(config) as worker:
             for spec in specs:
-                rows.append(worker.run(spec))
+                try:
+                    rows.append(worker.run(spec))
+                except Exception:
+                    errors.append(TrialError(spec, traceback.format_exc()))
+                    if on_error:
+                        on_error(errors[-1])
+                    continue
                 if on_row:
                     on_row(rows[-1])
-            return rows, worker.teach_s
+            return rows, worker.teach_s, errors
     ctx = mp.get_context("spawn")  # MuJoCo's OpenGL context and threads do not survive fork
     tasks: Any = ctx.Queue()
     results: Any = ctx.Queue()
@@ -404,6 +427,7 @@ def run_trials(
     for p in procs:
         p.start()
     got: dict[TrialSpec, dict[str, Any]] = {}
+    failed: dict[TrialSpec, TrialError] = {}
     teach_s, finished = 0.0, 0
     try:
         while finished < n:
@@ -411,12 +435,18 @@ def run_trials(
                 kind, spec, payload = results.get(timeout=5.0)
             except queue.Empty:
                 if not any(p.is_alive() for p in procs):
-                    raise RuntimeError(
-                        "every benchmark worker died; see the messages above"
-                    ) from None
+                    for s in specs:  # left in the queue, or being run by a worker that died
+                        if s not in got and s not in failed:
+                            failed[s] = TrialError(s, "not run: its worker died (see above)")
+                            if on_error:
+                                on_error(failed[s])
+                    break
                 continue
             if kind == "error":
-                raise RuntimeError(f"trial {spec} failed in a worker:\n{payload}")
+                failed[spec] = TrialError(spec, payload)
+                if on_error:
+                    on_error(failed[spec])
+                continue
             if kind == "teach_s":
                 teach_s += payload
                 finished += 1
@@ -431,7 +461,8 @@ def run_trials(
                 p.terminate()
         for p in procs:
             p.join(timeout=30)
-    return [got[s] for s in specs], teach_s
+    rows = [got[s] for s in specs if s in got]
+    return rows, teach_s, [failed[s] for s in specs if s in failed]
 
 
 def prepare_recordings(

@@ -246,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
     from robot_client.sim.check_plan import load_plans_or_exit
     from server.bench.nav_sweep import (
         SweepConfig,
+        TrialError,
         TrialSpec,
         group_rows,
         prepare_recordings,
@@ -303,8 +304,18 @@ def run(args: argparse.Namespace) -> int:
                 f"ratio {r['path_ratio']:4.2f}  {r['reason'] or ''}"
             )
 
+        def report(e: TrialError) -> None:
+            bar.update(1)
+            name = plans[e.spec.plan].name
+            tqdm.write(f"{name:<12} {e.spec.condition:<8} {e.spec.trial:3d} raised:\n{e.traceback}")
+
         with bar:
-            rows, teach_s = run_trials(config, specs, workers=args.workers, on_row=show)
+            rows, teach_s, errors = run_trials(
+                config, specs, workers=args.workers, on_row=show, on_error=report
+            )
+    if errors and not rows:
+        print(f"{prog}: every trial raised (the first above); nothing to report", file=sys.stderr)
+        return 1
     wall_s = time.perf_counter() - t0
     results = []
     for (index, condition), group in group_rows(rows, ("plan_index", "condition")):
@@ -371,6 +382,8 @@ def run(args: argparse.Namespace) -> int:
         "lost: the belief not localised on half of the last 20 s; timeout: the rest",
         "pooled": pooled,
     }
+    if errors:
+        summary["errors"] = [{"plan": plans[e.spec.plan].name, **e.row()} for e in errors]
     if generated:
         summary["generated"] = [
             {"seed": home.seed, "file": str(path), "name": home.data["name"], "sha256": home.sha256}
@@ -383,4 +396,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         summary["results"] = results
     write_json(args.json, summary)
+    if errors:
+        print(
+            f'{prog}: {len(errors)} trial(s) raised (above; the JSON\'s "errors"); the '
+            f"figures are of the {len(rows)} that finished",
+            file=sys.stderr,
+        )
+        return 1
     return 0

@@ -7,12 +7,14 @@ each worker's real server through the REST API, and navigated in the real simula
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from server.bench.nav_sweep import recording_key
 from server.cli import main
 
 PLAN = Path(__file__).resolve().parents[1] / "data" / "plans" / "two_rooms.json"
@@ -99,3 +101,30 @@ def test_a_two_room_home_is_taught_and_navigated_the_same_on_any_number_of_worke
             "lost",
             "timeout",
         )
+
+
+@pytest.mark.slow
+def test_a_trial_that_raises_is_reported_and_the_finished_trials_are_kept(tmp_path: Path) -> None:
+    # a second home whose cached tour is unreadable: its trial raises in the worker teaching
+    # it; the sweep goes on, the first home's trial finishes and its figures are written
+    broken = tmp_path / "broken_rooms.json"
+    broken.write_text(json.dumps({**json.loads(PLAN.read_text()), "name": "broken rooms"}))
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    key = recording_key(hashlib.sha256(broken.read_bytes()).hexdigest(), 2)
+    (cache / key).write_bytes(b"not a tour recording")
+    out = tmp_path / "out.json"
+    args = ["bench", "navigate", "--plan", str(PLAN), str(broken), "--trials", "1"]
+    args += ["--seed", "2", "--max-steps", "400", "--workers", "2"]
+    assert main([*args, "--cache", str(cache), "--json", str(out)]) == 1  # said: not all ran
+    result = json.loads(out.read_text())
+    (error,) = result["errors"]
+    assert (error["plan"], error["plan_index"], error["condition"], error["trial"]) == (
+        "broken rooms",
+        1,
+        "same",
+        0,
+    )
+    assert "is not a readable tour recording" in error["traceback"]
+    (row,) = rows(result)  # the trial that finished, at the top level as one group's are
+    assert row["plan"] == "two rooms" and result["trials"] == 1
