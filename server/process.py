@@ -42,11 +42,14 @@ class ServerProcess:
         """What :class:`server.storage.repo.Repo` opens to read what the server stored."""
         return self.database_url if self.database_url is not None else self.db
 
-    def register_robot(self, name: str) -> str:
-        """Register robot ``name`` with the admin token; its bearer token."""
+    def register_robot(self, name: str, *, timeout_s: float = 10.0) -> str:
+        """Register robot ``name`` with the admin token, waiting up to ``timeout_s`` for the
+        answer; its bearer token."""
         from robot_client.client import TeachRepeatClient
 
-        with TeachRepeatClient(self.url, self.admin_token, ca_cert=self.ca_cert) as admin:
+        with TeachRepeatClient(
+            self.url, self.admin_token, ca_cert=self.ca_cert, timeout_s=timeout_s
+        ) as admin:
             return admin.register_robot(name).token
 
     def kill(self) -> None:

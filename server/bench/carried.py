@@ -124,7 +124,7 @@ def _trial(
     from robot_client.sim.world import Pose
     from robot_client.trial import run_trial
     from server.bench.nav_sweep import ANSWER_WAIT_S, tracer, write_trace
-    from server.process import ADMIN, start_server
+    from server.process import start_server
 
     plan = load_plan(scenario.plan)
     first = next(p for p in plan.places if p.name == scenario.route[0])
@@ -132,8 +132,7 @@ def _trial(
     with tempfile.TemporaryDirectory() as tmp:
         server = start_server(Path(tmp) / "carried.sqlite", extra_env=env)
         try:
-            with TeachRepeatClient(server.url, ADMIN) as admin:
-                token = admin.register_robot("carried").token
+            token = server.register_robot("carried", timeout_s=ANSWER_WAIT_S)
             with (
                 TeachRepeatClient(server.url, token, timeout_s=ANSWER_WAIT_S) as client,
                 SimWorld(plan, condition=args.condition, seed=seed) as world,

@@ -165,11 +165,12 @@ class Worker:
         self.close()
 
     def client(self, robot: str) -> Any:
-        """A client of this worker's server for ``robot``, registered afresh, that waits for
-        every answer (:data:`ANSWER_WAIT_S`)."""
+        """A client of this worker's server for ``robot``, registered afresh (the admin's
+        request too waiting up to :data:`ANSWER_WAIT_S`), that waits for every answer as
+        long."""
         from robot_client.client import TeachRepeatClient
 
-        token = self.server.register_robot(robot)
+        token = self.server.register_robot(robot, timeout_s=ANSWER_WAIT_S)
         return TeachRepeatClient(self.server.url, token, timeout_s=ANSWER_WAIT_S)
 
     def tour(self, plan: int) -> Any:

@@ -226,7 +226,8 @@ def test_a_trial_waits_for_a_slow_answer_instead_of_resending_the_frame(
     class Server:
         url = "http://127.0.0.1:1"
 
-        def register_robot(self, name: str) -> str:
+        def register_robot(self, name: str, *, timeout_s: float = 10.0) -> str:
+            opened.append({"register timeout_s": timeout_s})
             return "token"
 
     worker = object.__new__(nav_sweep.Worker)
@@ -237,5 +238,6 @@ def test_a_trial_waits_for_a_slow_answer_instead_of_resending_the_frame(
     monkeypatch.setattr(robot_client.client, "TeachRepeatClient", client)
     with pytest.raises(Opened):
         worker.run(nav_sweep.TrialSpec(0, "same", 0))
-    assert opened == [{"timeout_s": nav_sweep.ANSWER_WAIT_S}]
+    wait = nav_sweep.ANSWER_WAIT_S
+    assert opened == [{"register timeout_s": wait}, {"timeout_s": wait}]  # the admin's too
     assert nav_sweep.ANSWER_WAIT_S >= 300  # minutes: only a hung server is given up on
