@@ -74,13 +74,6 @@ class TopometricParams:
       tell the heading well and the direction poorly.
     * ``along_sigma`` (0.4 m): how far along the path the belief's most likely image is
       trusted (the along-path position the camera's directions tell least).
-    * ``along_every_m`` (0: off): while the estimate is locked, the measurements that repeat
-      each other frame after frame (the belief's most likely image, a direction, a depth
-      profile fit's along-path term: the same view of the same room, their errors alike)
-      count as one per this many metres driven: each frame's variance is multiplied by this
-      over the metres driven in the frame (at least 1 mm); 0.5 m under test. Fused every frame as if
-      independent, they made the along-path standard deviation 0.04 m while the robot was
-      metres from where the estimate put it. 0: every frame counts fully.
     * ``scan`` (True), ``scan_sigma_m`` (0.04), ``scan_sigma_rad`` (0.02): with a depth
       profile now and one taught with the image nearest the estimate, their alignment
       (:mod:`server.navigation.scanmatch`) measures the whole pose; its covariance is at least
@@ -175,7 +168,6 @@ class TopometricParams:
     bearing_parallax_px: float = 4.0
     bearing_inliers: int = 12
     along_sigma: float = 0.4
-    along_every_m: float = 0.0
     scan: bool = True
     scan_sigma_m: float = 0.04
     scan_sigma_rad: float = 0.02
@@ -313,7 +305,6 @@ class PathTracker:
         self.refuted = 0  # scan fits in a row, while locked, that the gate refused
         self.trace: list[TracePoint] = []  # since the last locked frame (that one first)
         self.chained = False  # the estimate came onto this edge through a place
-        self.repeat = 1.0  # this frame's variance factor for repeated measurements
         self.estimate: PathEstimate | None = None
 
     def image(self, edge: int, k: int) -> int:
@@ -346,7 +337,6 @@ class PathTracker:
         there is no edge to track."""
         if self.edge is not None:
             self.mean, self.cov = predict(self.mean, self.cov, v, w, dt, self.p.noise)
-        self.repeat = self._repeat(abs(v) * dt)
         wanted = self.wanted(decision)
         if wanted is not None and wanted != self.edge:
             self._follow(wanted, decision, along_belief)
@@ -371,14 +361,6 @@ class PathTracker:
         self.estimate = est = self._estimate(t, fixes)
         self._remember(est)
         return est
-
-    def _repeat(self, driven_m: float) -> float:
-        """The variance factor of this frame's repeated measurements (``along_every_m``):
-        1 while not locked; ``driven_m``: metres driven since the last frame."""
-        every = self.p.along_every_m
-        if every <= 0.0 or self.estimate is None or not self.estimate.locked:
-            return 1.0
-        return max(1.0, every / max(driven_m, 1e-3))
 
     def _astray(self) -> bool:
         """Whether the estimate has drifted beyond use while not locked: further beside the
@@ -472,7 +454,7 @@ class PathTracker:
             self.cov,
             path.point_at(s),
             path.heading_at(s),
-            self.p.along_sigma * math.sqrt(self.repeat),
+            self.p.along_sigma,
             gate=self.p.gate,
         )
         if up.used:
@@ -507,7 +489,7 @@ class PathTracker:
         if best is not None:
             fit, taught = best
             assert fit.bearing is not None
-            sigma_b = (p.bearing_sigma + (fit.bearing_sigma or 0.0)) * math.sqrt(self.repeat)
+            sigma_b = p.bearing_sigma + (fit.bearing_sigma or 0.0)
             up = update_bearing(self.mean, self.cov, taught, fit.bearing, sigma_b, gate=p.gate)
             if up.used:
                 self.mean, self.cov = up.mean, up.cov
@@ -530,7 +512,7 @@ class PathTracker:
             return 1
         if best is None:
             return 0
-        measured, R = self._measured(*best, h, repeat=self.repeat)
+        measured, R = self._measured(*best, h)
         up = update_pose(self.mean, self.cov, measured, R, gate=p.scan_gate)
         self.refuted = self.refuted + 1 if locked and not up.used else 0
         if self.refuted >= p.refute_fits:
@@ -616,20 +598,19 @@ class PathTracker:
         return True
 
     def _measured(
-        self, fit: ScanFit, pose_k: FloatArray, heading: float, *, repeat: float = 1.0
+        self, fit: ScanFit, pose_k: FloatArray, heading: float
     ) -> tuple[FloatArray, FloatArray]:
         """A scan fit relative to the taught pose ``pose_k`` as a measured pose in the edge's
         frame and its covariance (at least the scan's floor; along the path, at ``heading``,
         a profile may align one door further on: it tells the offset from the path and the
-        heading well, how far along only loosely; ``repeat``: that term's variance factor,
-        :meth:`_repeat`)."""
+        heading well, how far along only loosely)."""
         p = self.p
         measured = compose(pose_k, fit.pose)
         c, s = math.cos(float(pose_k[2])), math.sin(float(pose_k[2]))
         J = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         R = J @ fit.cov @ J.T + np.diag([p.scan_sigma_m**2, p.scan_sigma_m**2, p.scan_sigma_rad**2])
         t = np.array([math.cos(heading), math.sin(heading)])
-        R[:2, :2] += repeat * p.scan_along_sigma_m**2 * np.outer(t, t)
+        R[:2, :2] += p.scan_along_sigma_m**2 * np.outer(t, t)
         return measured, R
 
     def _scan_images(self, path: EdgePath, along: float) -> list[int]:

@@ -9,7 +9,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-import pytest
 from navigation_testkit import NO_FEATURES, depth_tracker, room_profile, taught_edge
 
 from server.belief.model import Action
@@ -33,22 +32,15 @@ WALLS = [  # a 6 m x 3 m room with a cupboard and a table
 
 
 def run(
-    offset: float,
-    heading: float,
-    steps: int = 200,
-    seed: int = 0,
-    facing_from: int = 0,
-    params: TopometricParams | None = None,
-    along_sd: list[float] | None = None,
+    offset: float, heading: float, steps: int = 200, seed: int = 0, facing_from: int = 0
 ) -> list[tuple[float, float, bool]]:
     """Drive by the tracker's estimate from ``offset`` m beside the start of the taught edge;
     (true lateral, estimated lateral, locked) after every step. Before step ``facing_from``
-    the robot is said to face away from where the edge sets off. ``along_sd``: filled with
-    the along-path standard deviation of every locked step."""
+    the robot is said to face away from where the edge sets off."""
     rng = np.random.default_rng(seed)
     start = np.array([0.6, 1.5, 0.0])  # the taught edge runs along the room's middle
     path, depths = taught_edge(start, walls=WALLS)
-    params = params or TopometricParams()
+    params = TopometricParams()
     tracker = depth_tracker(path, depths, params)
     truth = compose(start, np.array([0.3, offset, heading]))
     decision = Decision(Action.navigate(0), 1, {}, 0)
@@ -74,8 +66,6 @@ def run(
         assert est is not None
         true_lateral = float(relative(start, truth)[1])
         out.append((true_lateral, est.lateral_m, est.locked))
-        if along_sd is not None and est.locked:
-            along_sd.append(est.sigma_along)
         if est.remaining_m < 0.3:
             break
         if est.locked:
@@ -96,25 +86,6 @@ def test_from_beside_the_path_it_locks_on_and_brings_the_robot_onto_it() -> None
         assert np.median(errors) < 0.05 and errors.max() < 0.2  # the estimate against the truth
         assert abs(trace[-1][0]) < 0.1  # on the path by the end
         assert len(trace) < 200  # reached the end
-
-
-def test_repeated_measurements_count_once_per_distance_driven_while_locked() -> None:
-    # the belief's image and the same room's profile, fused every frame as if independent,
-    # make the along-path estimate ever surer; counted once per 0.5 m driven, less so
-    every, each = [], []
-    run(0.3, 0.1, params=replace(TopometricParams(), along_every_m=0.5), along_sd=every)
-    trace = run(0.3, 0.1, params=replace(TopometricParams(), along_every_m=0.0), along_sd=each)
-    assert np.median(every) > 1.5 * np.median(each)
-    assert abs(trace[-1][0]) < 0.1  # and still on the path by the end
-    path, depths = taught_edge(np.array([0.6, 1.5, 0.0]), walls=WALLS)
-    tracker = depth_tracker(path, depths, replace(TopometricParams(), along_every_m=0.5))
-    tracker._start(0, Decision(Action.navigate(0), 1, {}, 0), 6)
-    tracker.estimate = tracker._estimate(0.0, 0)
-    assert not tracker.estimate.locked and tracker._repeat(0.05) == 1.0  # every frame counts
-    tracker.estimate = replace(tracker.estimate, locked=True)
-    assert tracker._repeat(0.05) == pytest.approx(10.0)
-    assert tracker._repeat(0.0) == pytest.approx(500.0)  # standing still: at least 1 mm
-    assert tracker._repeat(1.0) == 1.0
 
 
 def test_a_robot_said_to_face_away_is_not_locked_on_until_it_faces_the_way() -> None:
