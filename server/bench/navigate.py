@@ -314,7 +314,7 @@ def run(args: argparse.Namespace) -> int:
                 config, specs, workers=args.workers, on_row=show, on_error=report
             )
     if errors and not rows:
-        print(f"{prog}: every trial raised (the first above); nothing to report", file=sys.stderr)
+        print(f"{prog}: every trial raised (tracebacks above); nothing to report", file=sys.stderr)
         return 1
     wall_s = time.perf_counter() - t0
     results = []
