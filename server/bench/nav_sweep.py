@@ -402,20 +402,25 @@ def run_trials(
     workers' servers, and the trials that raised (or whose worker died), in the order of
     ``specs``. A trial that raises is reported (``on_error``) and the sweep goes on: an hour
     of finished trials is not lost to one."""
+    failed: dict[TrialSpec, TrialError] = {}
+
+    def fail(spec: TrialSpec, text: str) -> None:
+        failed[spec] = TrialError(spec, text)
+        if on_error:
+            on_error(failed[spec])
+
     if workers <= 1:
-        rows, errors = [], []
+        rows = []
         with Worker(config) as worker:
             for spec in specs:
                 try:
                     rows.append(worker.run(spec))
                 except Exception:
-                    errors.append(TrialError(spec, traceback.format_exc()))
-                    if on_error:
-                        on_error(errors[-1])
+                    fail(spec, traceback.format_exc())
                     continue
                 if on_row:
                     on_row(rows[-1])
-            return rows, worker.teach_s, errors
+            return rows, worker.teach_s, list(failed.values())
     ctx = mp.get_context("spawn")  # MuJoCo's OpenGL context and threads do not survive fork
     tasks: Any = ctx.Queue()
     results: Any = ctx.Queue()
@@ -428,7 +433,6 @@ def run_trials(
     for p in procs:
         p.start()
     got: dict[TrialSpec, dict[str, Any]] = {}
-    failed: dict[TrialSpec, TrialError] = {}
     teach_s, finished = 0.0, 0
     try:
         while finished < n:
@@ -438,15 +442,11 @@ def run_trials(
                 if not any(p.is_alive() for p in procs):
                     for s in specs:  # left in the queue, or being run by a worker that died
                         if s not in got and s not in failed:
-                            failed[s] = TrialError(s, "not run: its worker died (see above)")
-                            if on_error:
-                                on_error(failed[s])
+                            fail(s, "not run: its worker died (see above)")
                     break
                 continue
             if kind == "error":
-                failed[spec] = TrialError(spec, payload)
-                if on_error:
-                    on_error(failed[spec])
+                fail(spec, payload)
                 continue
             if kind == "teach_s":
                 teach_s += payload
