@@ -34,6 +34,8 @@ IntArray = npt.NDArray[np.int64]
 class HeadingParams:
     """The heading filter's settings (fixed a priori, not tuned).
 
+    * ``enabled`` (True): ``False`` gives a place the best of its spin views every frame
+      (001 eq. 2).
     * ``bins`` (36): heading bins per place (10 degrees each); a bin's similarity is the best
       of the spin images taught facing into it.
     * ``sd_rad`` (0.05 rad) and ``turn_sd`` (0.1, per radian turned): the heading's noise
@@ -42,6 +44,7 @@ class HeadingParams:
       frame (a robot carried, a turn the odometry missed).
     """
 
+    enabled: bool = True
     bins: int = 36
     sd_rad: float = 0.05
     turn_sd: float = 0.1
@@ -119,13 +122,24 @@ class HeadingBins:
 
     def similarities(self, location_sims: npt.ArrayLike, floor: float) -> FloatArray:
         """``(K, L, B)`` each bin's similarity, the best of its spin images' (``(K, n_loc)``
-        ``location_sims``, canonical order); ``floor`` where no spin image faces into a bin."""
+        ``location_sims``, canonical order). A bin no spin image faces into (the spin's
+        images further apart than a bin) takes the mean of the nearest bins either side that
+        have one: the spin did not look there, which says nothing against the place. A place
+        without images: ``floor`` throughout."""
         s = np.asarray(location_sims, dtype=np.float64)
-        out = np.full((s.shape[0], self.n_locations * self.bins), float(floor))
+        out = np.full((s.shape[0], self.n_locations * self.bins), np.nan)
         if self.n_loc_images:
             out[:, self.cell] = np.maximum.reduceat(s[:, self.order], self.starts, axis=1)
-        np.maximum(out, floor, out=out)
-        return out.reshape(s.shape[0], self.n_locations, self.bins)
+        grid = out.reshape(s.shape[0], self.n_locations, self.bins)
+        grid = np.where(np.isnan(grid).all(axis=-1, keepdims=True), floor, grid)
+        left, right = grid.copy(), grid.copy()
+        for _ in range(self.bins):  # each empty bin: its nearest filled bin on each side
+            if not np.isnan(left).any():
+                break
+            left = np.where(np.isnan(left), np.roll(left, 1, axis=-1), left)
+            right = np.where(np.isnan(right), np.roll(right, -1, axis=-1), right)
+        grid = np.where(np.isnan(grid), (left + right) / 2, grid)
+        return np.maximum(grid, floor)
 
 
 def turn(q: npt.ArrayLike, dtheta: float, params: HeadingParams) -> FloatArray:

@@ -218,8 +218,8 @@ class NavigationParams:
       (:class:`server.navigation.pathtrack.TopometricParams`).
     * ``headings`` (:class:`server.belief.headings.HeadingParams`): a place's likelihood
       through a filter over the heading the robot faces there, turned by the odometry
-      (:class:`server.belief.headings.PlaceHeadings`); ``None``: the best of its spin views
-      every frame (001 eq. 2).
+      (:class:`server.belief.headings.PlaceHeadings`); ``headings.enabled=false``: the best
+      of its spin views every frame (001 eq. 2).
     """
 
     arrive_mass: float = 0.6
@@ -266,7 +266,7 @@ class NavigationParams:
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     topometric: TopometricParams = field(default_factory=TopometricParams)
-    headings: HeadingParams | None = field(default_factory=HeadingParams)
+    headings: HeadingParams = field(default_factory=HeadingParams)
     questions: QuestionParams = field(default_factory=QuestionParams)
 
     def __post_init__(self) -> None:

@@ -354,7 +354,7 @@ class TourRuntime:
     def place_headings(self) -> PlaceHeadings | None:
         """A new heading filter for one robot (``None`` when ``headings`` is off)."""
         p = self.params.headings
-        return None if p is None else PlaceHeadings(self.graph, p)
+        return PlaceHeadings(self.graph, p) if p.enabled else None
 
     def believe(
         self,
