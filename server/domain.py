@@ -30,16 +30,11 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Location:
-    """A named place. ``image_ids`` are the storage ids of its spin images, in order;
-    ``timestamps`` (s) and ``w`` (rad/s), aligned with them when known (empty otherwise), the
-    spin's own odometry: each image's capture time and the turn rate being executed when it
-    was taken."""
+    """A named place. ``image_ids`` are the storage ids of its spin images, in order."""
 
     name: str
     image_ids: tuple[int, ...] = ()
     id: int = -1  # storage id, -1 when the graph was built by hand
-    timestamps: tuple[float, ...] = ()
-    w: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -105,7 +105,6 @@ class Navigator:
         self.runtime = runtime
         self.params = runtime.params
         self.tracker = Tracker(runtime.model, runtime.params.tracker)
-        self.headings = runtime.place_headings()  # the places' heading filter, or None
         self.task: Task | None = None
         self.crew: Crew | None = None
         self.last_action = Action.do_nothing()
@@ -133,8 +132,6 @@ class Navigator:
         self.path = self._path_tracker()
         if self.params.fresh_belief:
             self.tracker.reset()
-            if self.headings is not None:
-                self.headings.reset()
             self.last_action = Action.do_nothing()
             self.previous, self.fresh = None, True
 
@@ -154,7 +151,6 @@ class Navigator:
         old, memory = self.tracker.belief, self.tracker.memory()
         self.runtime, self.params = runtime, runtime.params
         self.tracker = Tracker(runtime.model, runtime.params.tracker)
-        self.headings = runtime.place_headings()
         if old.shape == (runtime.model.n_fine,):
             self.tracker.set_belief(old, memory)
         if self.task is not None:
@@ -180,7 +176,7 @@ class Navigator:
     def _idle(self, frame: Frame, dt: float) -> Step:
         """No task underway: the belief goes on; the robot stands."""
         features = extract(frame.image, self.params.features)
-        similarities, likelihood = self.runtime.observe(features, self.headings, frame.w * dt)
+        similarities, likelihood = self.runtime.observe(features)
         summary = self.runtime.believe(
             self.tracker, self.last_action, similarities, likelihood, v=frame.v, w=frame.w, dt=dt
         )
@@ -201,7 +197,6 @@ class Navigator:
             previous=self.previous,
             wants=crew.wants,
             path=self.path,
-            headings=self.headings,
         )
         crew.avoid.look(obs)
         proposals: dict[str, Proposal | None] = {b.name: b.propose(obs) for b in crew.motion}

@@ -16,7 +16,6 @@ from typing import Generic, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from server.belief.headings import PlaceHeadings
 from server.belief.model import Action, ActionKind
 from server.belief.tracker import BeliefSummary, Tracker
 from server.navigation.command import Command, Proposal
@@ -201,7 +200,6 @@ def perceive(
     previous: Outcome | None,
     wants: Callable[[Observation], ViewRequest],
     path: PathTracker | None = None,
-    headings: PlaceHeadings | None = None,
 ) -> Observation:
     """Features, similarities, the belief update, the policy's votes, the path tracker, then
     the views asked for.
@@ -214,12 +212,10 @@ def perceive(
         previous: the last frame's outcome.
         wants: given the observation without views, the views the behaviours need.
         path: the task's path tracker (stepped once), or ``None`` (topometric repeat off).
-        headings: the robot's heading filter over the places (stepped once, turned by the
-            frame's odometry), or ``None`` (a place's likelihood the best of its spin views).
     """
     p = runtime.params
     features = extract(frame.image, p.features)
-    similarities, likelihood = runtime.observe(features, headings, frame.w * dt)
+    similarities, likelihood = runtime.observe(features)
     if path is not None and path.estimate is not None:
         likelihood = likelihood * runtime.path_evidence(path.estimate)[None, :]
     summary = runtime.believe(

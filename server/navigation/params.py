@@ -11,7 +11,6 @@ from typing import Literal
 
 import numpy as np
 
-from server.belief.headings import HeadingParams
 from server.belief.model import TransitionParams
 from server.belief.questions import QuestionParams
 from server.belief.tracker import TrackerParams
@@ -216,10 +215,6 @@ class NavigationParams:
       (:class:`AmbiguityParams`).
     * ``topometric``: following taught edges by the robot's pose relative to the taught path
       (:class:`server.navigation.pathtrack.TopometricParams`).
-    * ``headings`` (:class:`server.belief.headings.HeadingParams`): a place's likelihood
-      through a filter over the heading the robot faces there, turned by the odometry
-      (:class:`server.belief.headings.PlaceHeadings`); ``headings.enabled=false``: the best
-      of its spin views every frame (001 eq. 2).
     """
 
     arrive_mass: float = 0.6
@@ -266,7 +261,6 @@ class NavigationParams:
     motion: MotionParams = field(default_factory=MotionParams)
     ambiguity: AmbiguityParams = field(default_factory=AmbiguityParams)
     topometric: TopometricParams = field(default_factory=TopometricParams)
-    headings: HeadingParams = field(default_factory=HeadingParams)
     questions: QuestionParams = field(default_factory=QuestionParams)
 
     def __post_init__(self) -> None:

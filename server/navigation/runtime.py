@@ -13,7 +13,6 @@ import numpy as np
 import numpy.typing as npt
 
 from server.belief.appearance import familiarity
-from server.belief.headings import PlaceHeadings
 from server.belief.model import Action, BeliefModel, build_model
 from server.belief.tracker import BeliefSummary, Tracker, fine_likelihood
 from server.domain import TourGraph
@@ -338,23 +337,12 @@ class TourRuntime:
         n = self.graph.edges[edge].n_images
         return int(self._edge_first[edge]) + int(np.clip(k, 0, n - 1))
 
-    def observe(
-        self, features: ImageFeatures, headings: PlaceHeadings | None = None, turned: float = 0.0
-    ) -> tuple[tuple[Similarity, ...], FloatArray]:
+    def observe(self, features: ImageFeatures) -> tuple[tuple[Similarity, ...], FloatArray]:
         """Engine similarities of a frame under every appearance model
         (:meth:`TourIndex.query_models`) and the ``(K, n_fine)`` likelihoods they give, one row
-        per model, for :meth:`Tracker.step` to weigh: with ``headings`` (the robot's heading
-        filter, stepped once, the robot having turned ``turned`` rad since the last frame) a
-        place's through the heading it faces there, else the best of its spin views."""
+        per model, for :meth:`Tracker.step` to weigh."""
         sims = self.index.query_models(features, n_states=self.graph.n_states)
-        if headings is not None:
-            return sims, headings.likelihood(np.stack([s.image for s in sims]), turned)
         return sims, np.stack([fine_likelihood(s.image, self.graph) for s in sims])
-
-    def place_headings(self) -> PlaceHeadings | None:
-        """A new heading filter for one robot (``None`` when ``headings`` is off)."""
-        p = self.params.headings
-        return PlaceHeadings(self.graph, p) if p.enabled else None
 
     def believe(
         self,

@@ -48,8 +48,6 @@ class LocationRow:
     image_ids: tuple[int, ...]
     poses: tuple[Pose | None, ...] = ()  # aligned with image_ids (when read with them)
     entropy: tuple[float | None, ...] = ()  # distinctiveness per image, nats
-    timestamps: tuple[float, ...] = ()  # the spin's odometry, aligned with image_ids
-    w: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -520,7 +518,7 @@ class Repo:
     def locations(self, tour_id: int) -> list[LocationRow]:
         locs = self._q("SELECT id, name FROM locations WHERE tour_id = ? ORDER BY id", (tour_id,))
         images = self._q(
-            f"SELECT location_id, id, {_IMAGE_EXTRAS}, timestamp, w FROM images "
+            f"SELECT location_id, id, {_IMAGE_EXTRAS} FROM images "
             "WHERE tour_id = ? AND location_id IS NOT NULL ORDER BY location_id, seq",
             (tour_id,),
         )
@@ -538,8 +536,6 @@ class Repo:
                     tuple(r[0] for r in rows),
                     tuple(_pose(r[1:4]) for r in rows),
                     tuple(r[4] for r in rows),
-                    tuple(float(r[5]) for r in rows),
-                    tuple(float(r[6]) for r in rows),
                 )
             )
         return out
@@ -612,9 +608,7 @@ class Repo:
             image_entropy=None
             if all(h is None for h in entropy)
             else np.array([np.nan if h is None else h for h in entropy], dtype=np.float64),
-            locations=tuple(
-                Location(loc.name, loc.image_ids, loc.id, loc.timestamps, loc.w) for loc in locs
-            ),
+            locations=tuple(Location(loc.name, loc.image_ids, loc.id) for loc in locs),
             edges=tuple(
                 Edge(
                     source=index[e.source_id],

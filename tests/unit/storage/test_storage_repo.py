@@ -158,9 +158,6 @@ def test_graph_keeps_order_and_owners(repo: Repo) -> None:
     graph = repo.graph(tour.id)
     assert [loc.name for loc in graph.locations] == ["a", "b"]
     assert graph.locations[0].image_ids == (spin,)
-    # the spin's own odometry travels with its images (the places' heading filter reads it)
-    assert (graph.locations[0].timestamps, graph.locations[0].w) == ((1.0,), (0.0,))
-    assert (graph.locations[1].timestamps, graph.locations[1].w) == ((), ())
     assert graph.edges[0].image_ids == tuple(pending)
     assert (graph.edges[0].source, graph.edges[0].target) == (0, 1)
     assert graph.n_fine == 2 + 3
