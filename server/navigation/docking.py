@@ -19,7 +19,6 @@ The arbiter asks :meth:`place` among the motion behaviours and :meth:`confirm` l
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -108,68 +107,44 @@ def spot_by_scan(
 class SpotFix:
     """A place's taught spot as the depth profiles place it, kept between frames: each
     frame's estimate (:func:`spot_by_scan`) is carried to the next by the robot's odometry,
-    and the spot counts as found only when two estimates agree within ``agree_m`` (a place's
-    spin profiles can align wrongly, one frame here, the next there: the robot turned back and
-    forth in a hall so). With ``spread_rad`` 0 the two are this frame's and the last one's;
-    above 0, this frame's and one made facing at least ``spread_rad`` away (by the odometry's
-    turn since, over the last ``memory_frames`` frames), so that the two fits read different
-    walls: one profile of walls aligns with a spin profile taken metres away (a robot 4.7 m
-    from the studio's front door "arrived" there), the walls seen facing elsewhere do not
-    repeat it. A found spot is then confirmed frame to frame as with ``spread_rad`` 0, and
-    carried on by the odometry through up to ``carry_frames`` frames whose profiles say
-    nothing (docking drives on, rather than standing still on each such frame)."""
+    and the spot counts as found only when two estimates in a row agree within ``agree_m``
+    (a place's spin profiles can align wrongly, one frame here, the next there: the robot
+    turned back and forth in a hall so). A found spot is carried on by the odometry through
+    up to ``carry_frames`` frames whose profiles say nothing (docking drives on, rather than
+    standing still on each such frame)."""
 
     agree_m = 0.25
     carry_frames = 5
-    memory_frames = 100
 
-    def __init__(self, spread_rad: float = 0.0) -> None:
-        self.spread_rad = spread_rad
+    def __init__(self) -> None:
         self.spot: npt.NDArray[np.float64] | None = None  # robot frame, last frame's estimate
         self.found: npt.NDArray[np.float64] | None = None  # robot frame, last found spot
         self.carried = 0  # frames the found spot has been carried without a new one
-        # earlier estimates (robot frame, carried here) and the turn since each, rad
-        self.seen: list[tuple[npt.NDArray[np.float64], float]] = []
 
     def reset(self) -> None:
         self.spot = self.found = None
         self.carried = 0
-        self.seen = []
 
     def update(
         self, rt: TourRuntime, obs: Observation, location: int
     ) -> npt.NDArray[np.float64] | None:
-        """The spot in the robot's frame when this frame's estimate is confirmed (see the
-        class), or the last found spot carried here; else ``None`` (it remembers this frame's
-        estimate)."""
-        return self.accept(spot_by_scan(rt, obs, location), obs.v, obs.w, obs.dt)
-
-    def accept(
-        self, estimate: npt.NDArray[np.float64] | None, v: float, w: float, dt: float
-    ) -> npt.NDArray[np.float64] | None:
-        """:meth:`update` with this frame's estimate (robot frame, m, or ``None``) given, after
-        the robot drove ``v`` m/s and turned ``w`` rad/s for ``dt`` s since the last frame."""
-        moved = move(np.zeros(3), v, w, dt)
-
-        def here(spot: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-            return np.asarray(relative(moved, np.array([spot[0], spot[1], 0.0]))[:2])
-
+        """The spot in the robot's frame when this frame's estimate agrees with the last
+        one's (carried by the odometry), or the last found spot carried here; else ``None``
+        (it remembers this frame's estimate)."""
+        moved = move(np.zeros(3), obs.v, obs.w, obs.dt)
         previous, carried = (
-            None if spot is None else here(spot) for spot in (self.spot, self.found)
+            None if spot is None else relative(moved, np.array([spot[0], spot[1], 0.0]))[:2]
+            for spot in (self.spot, self.found)
         )
-        turn = w * dt
-        self.seen = [(here(spot), turned + turn) for spot, turned in self.seen]
-        self.seen = self.seen[-self.memory_frames :]
+        estimate = spot_by_scan(rt, obs, location)
         self.spot = estimate
-        if estimate is not None:
-            if self.spread_rad <= 0 or self.found is not None:
-                agreeing = [] if previous is None else [previous]
-            else:
-                agreeing = [s for s, turned in self.seen if abs(turned) >= self.spread_rad]
-            self.seen.append((estimate, 0.0))
-            if any(float(np.hypot(*(estimate - s))) <= self.agree_m for s in agreeing):
-                self.found, self.carried = estimate, 0
-                return estimate
+        if (
+            estimate is not None
+            and previous is not None
+            and float(np.hypot(*(estimate - previous))) <= self.agree_m
+        ):
+            self.found, self.carried = estimate, 0
+            return estimate
         self.carried += 1
         disagrees = estimate is not None and (
             carried is None or float(np.hypot(*(estimate - carried))) > self.agree_m
@@ -338,8 +313,6 @@ class Docking:
         self.approach = Approach(done=not self.needs_approach)
         self.placing = PlaceDocking()
         self.spot = SpotFix()  # the goal's taught spot by the depth profiles
-        # place docking's: found by fits made facing half the depth's field of view apart
-        self.place_spot = SpotFix(spread_rad=math.radians(self.p.topometric.depth_fov_deg) / 2)
         self._engaged = False
 
     # -- views -------------------------------------------------------------------------------
@@ -440,7 +413,7 @@ class Docking:
         pl = self.placing
         if pl.phase not in ("look", "scan"):
             return None
-        spot = self.place_spot.update(self.rt, obs, self.goal)
+        spot = self.spot.update(self.rt, obs, self.goal)
         if spot is None:
             if pl.phase == "scan":
                 pl.scan_misses += 1
@@ -614,7 +587,6 @@ class Docking:
         elif self.waived and self.placing.phase in ("done", "off"):
             self.placing, a.on_spot = PlaceDocking(), False
             self.spot.reset()
-            self.place_spot.reset()
 
     # -- docking along the edge ----------------------------------------------------------------
 
